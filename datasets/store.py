@@ -1,0 +1,210 @@
+"""Zarr episode store in Diffusion Policy's ReplayBuffer layout.
+
+``data/<key>`` arrays share a time axis; ``meta/episode_ends`` holds cumulative episode
+ends. Diffusion Policy's own stores (zarr format 2) open as they are; ours are written in
+format 2 too, so Diffusion Policy and LeRobot's converters read them back.
+
+Crash safety: an episode is appended data first, then ``meta/episode_seeds``, and
+``meta/episode_ends`` last (zarr writes every file atomically). ``episode_ends`` is the
+commit record: arrays longer than its last entry hold a half-written episode, which readers
+ignore and the next writer truncates, so a store killed at any moment holds whole episodes.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any, Iterator
+
+import numcodecs
+import numpy as np
+import zarr
+
+from datasets.errors import DataError
+
+FORMAT_VERSION = 1
+_CHUNK_BYTES = 4 << 20
+
+
+def _compressor() -> numcodecs.Blosc:
+    return numcodecs.Blosc(cname="zstd", clevel=5, shuffle=numcodecs.Blosc.BITSHUFFLE)
+
+
+class EpisodeStore:
+    """Episodes of time-aligned arrays, appended whole and read by index."""
+
+    def __init__(self, path: Path, group: zarr.Group, writable: bool) -> None:
+        self.path = path
+        self.root = group
+        self.writable = writable
+        self._validate()
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def open(cls, path: str | Path, writable: bool = False) -> "EpisodeStore":
+        """Open an existing store; a half-written last episode is dropped when writable."""
+        path = Path(path)
+        if not path.exists():
+            raise DataError(f"{path}: no such file or directory")
+        if not path.is_dir() or not ((path / ".zgroup").exists() or (path / "zarr.json").exists()):
+            raise DataError(f"{path}: not a Zarr episode store (no .zgroup or zarr.json)")
+        try:
+            group = zarr.open_group(str(path), mode="r+" if writable else "r")
+        except Exception as exc:  # zarr raises several types for unreadable metadata
+            raise DataError(f"{path}: unreadable Zarr store ({exc})") from None
+        store = cls(path, group, writable)
+        if writable:
+            store._repair()
+        return store
+
+    @classmethod
+    def create(cls, path: str | Path, attrs: dict[str, Any], overwrite: bool = False) -> "EpisodeStore":
+        """A new empty store carrying ``attrs`` (provenance); refuses to replace data unless told."""
+        path = Path(path)
+        if path.exists():
+            if not overwrite:
+                raise DataError(f"{path}: already exists (pass --overwrite to replace it)")
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        group = zarr.open_group(str(path), mode="w", zarr_format=2)
+        group.create_group("data")
+        meta = group.create_group("meta")
+        for name in ("episode_ends", "episode_seeds"):
+            meta.create_array(name, shape=(0,), chunks=(4096,), dtype=np.int64, compressors=None)
+        meta.create_array("episode_scores", shape=(0,), chunks=(4096,), dtype=np.float64, compressors=None)
+        group.attrs.update({"gpc_format": FORMAT_VERSION, **attrs})
+        return cls(path, group, writable=True)
+
+    def _validate(self) -> None:
+        if "meta" not in self.root or "episode_ends" not in self.root["meta"]:
+            raise DataError(f"{self.path}: missing key meta/episode_ends")
+        if "data" not in self.root:
+            raise DataError(f"{self.path}: missing group data/")
+        ends = np.asarray(self.root["meta/episode_ends"][:], dtype=np.int64)
+        if ends.size and (ends[0] <= 0 or np.any(np.diff(ends) <= 0)):
+            raise DataError(f"{self.path}: meta/episode_ends is not strictly increasing and positive")
+        self._ends = ends
+        n = self.n_steps
+        for key, arr in self.root["data"].arrays():
+            if arr.shape[0] < n:
+                raise DataError(
+                    f"{self.path}: data/{key} has {arr.shape[0]} steps but meta/episode_ends needs {n}"
+                )
+
+    def _repair(self) -> None:
+        """Drop what a killed writer left past the last committed episode."""
+        n, e = self.n_steps, self.n_episodes
+        for _, arr in self.root["data"].arrays():
+            if arr.shape[0] > n:
+                arr.resize((n,) + arr.shape[1:])
+        for name in ("episode_seeds", "episode_scores"):
+            if name in self.root["meta"] and self.root["meta"][name].shape[0] > e:
+                self.root["meta"][name].resize((e,))
+        for partial in self.path.rglob("*.partial"):
+            partial.unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def attrs(self) -> dict[str, Any]:
+        return dict(self.root.attrs)
+
+    @property
+    def episode_ends(self) -> np.ndarray:
+        return self._ends
+
+    @property
+    def n_episodes(self) -> int:
+        return int(self._ends.size)
+
+    @property
+    def n_steps(self) -> int:
+        return int(self._ends[-1]) if self._ends.size else 0
+
+    @property
+    def keys(self) -> list[str]:
+        return sorted(k for k, _ in self.root["data"].arrays())
+
+    def shape(self, key: str) -> tuple[int, ...]:
+        return (self.n_steps,) + tuple(self.array(key).shape[1:])
+
+    def array(self, key: str) -> zarr.Array:
+        if key not in self.root["data"]:
+            raise DataError(f"{self.path}: missing key data/{key} (has {', '.join(self.keys) or 'none'})")
+        return self.root["data"][key]
+
+    def read(self, key: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Steps ``[start, stop)`` of ``key``, never past the last whole episode."""
+        stop = self.n_steps if stop is None else min(stop, self.n_steps)
+        return np.asarray(self.array(key)[start:stop])
+
+    def episode_slice(self, i: int) -> slice:
+        if not -self.n_episodes <= i < self.n_episodes:
+            raise DataError(f"{self.path}: episode {i} out of range (store has {self.n_episodes})")
+        i %= self.n_episodes
+        return slice(int(self._ends[i - 1]) if i else 0, int(self._ends[i]))
+
+    def episode(self, i: int, keys: list[str] | None = None) -> dict[str, np.ndarray]:
+        s = self.episode_slice(i)
+        return {k: self.read(k, s.start, s.stop) for k in (keys or self.keys)}
+
+    def episode_seeds(self) -> np.ndarray | None:
+        """Seeds of our collected episodes; ``None`` for stores recorded elsewhere."""
+        if "episode_seeds" not in self.root["meta"]:
+            return None
+        return np.asarray(self.root["meta/episode_seeds"][: self.n_episodes])
+
+    def episode_scores(self) -> np.ndarray | None:
+        if "episode_scores" not in self.root["meta"]:
+            return None
+        return np.asarray(self.root["meta/episode_scores"][: self.n_episodes])
+
+    def check_finite(self, keys: list[str] | None = None) -> None:
+        """Raise naming the first key holding NaN or inf (read chunk by chunk)."""
+        for key in keys or self.keys:
+            arr = self.array(key)
+            if not np.issubdtype(arr.dtype, np.floating):
+                continue
+            step = max(1, _CHUNK_BYTES // max(1, arr.dtype.itemsize * int(np.prod(arr.shape[1:]))))
+            for start in range(0, self.n_steps, step):
+                block = self.read(key, start, start + step)
+                flat = np.isfinite(block.reshape(len(block), -1)).all(axis=1)
+                if not flat.all():
+                    bad = start + int(np.flatnonzero(~flat)[0])
+                    raise DataError(f"{self.path}: data/{key} holds NaN or inf (first at step {bad})")
+
+    # ------------------------------------------------------------------ writing
+    def append_episode(self, data: dict[str, np.ndarray], seed: int = -1, score: float = np.nan) -> None:
+        """Append one whole episode; ``episode_ends`` is written last (the commit)."""
+        if not self.writable:
+            raise DataError(f"{self.path}: opened read-only")
+        lengths = {k: len(v) for k, v in data.items()}
+        length = next(iter(lengths.values()), 0)
+        if length == 0 or any(n != length for n in lengths.values()):
+            raise DataError(f"{self.path}: episode arrays must be non-empty and equally long, got {lengths}")
+        if self.n_episodes and set(data) != set(self.keys):
+            raise DataError(f"{self.path}: episode keys {sorted(data)} differ from the store's {self.keys}")
+        for key, value in data.items():
+            value = np.asarray(value)
+            if np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
+                raise DataError(f"{self.path}: refusing to write NaN or inf into data/{key}")
+            if key not in self.root["data"]:
+                row = int(np.prod(value.shape[1:])) * value.dtype.itemsize
+                chunk = max(1, min(4096, _CHUNK_BYTES // max(1, row)))
+                self.root["data"].create_array(
+                    key, shape=(0,) + value.shape[1:], chunks=(chunk,) + value.shape[1:],
+                    dtype=value.dtype, compressors=_compressor(),
+                )
+            arr = self.root["data"][key]
+            if arr.shape[1:] != value.shape[1:]:
+                raise DataError(f"{self.path}: data/{key} has rows {arr.shape[1:]}, episode has {value.shape[1:]}")
+            arr.append(value.astype(arr.dtype, copy=False), axis=0)
+        meta = self.root["meta"]
+        meta["episode_seeds"].append(np.array([seed], dtype=np.int64))
+        meta["episode_scores"].append(np.array([score], dtype=np.float64))
+        new_end = self.n_steps + length
+        meta["episode_ends"].append(np.array([new_end], dtype=np.int64))
+        self._ends = np.append(self._ends, new_end)
+
+    def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
+        for i in range(self.n_episodes):
+            yield self.episode(i)

@@ -1,0 +1,87 @@
+"""Training samples: windows of observations and actions drawn from one or more stores."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from datasets.errors import DataError
+from datasets.sequence import WindowSpec, window_indices, window_starts
+from datasets.store import EpisodeStore
+
+IMAGE_KEYS = ("img", "pixels")
+
+
+@dataclass
+class EpisodeArrays:
+    """Steps of several stores concatenated in memory, with their joint episode ends."""
+
+    data: dict[str, np.ndarray]
+    episode_ends: np.ndarray
+    sources: list[str] = field(default_factory=list)
+
+    @property
+    def n_episodes(self) -> int:
+        return int(self.episode_ends.size)
+
+    def episode_lengths(self) -> np.ndarray:
+        return np.diff(np.concatenate([[0], self.episode_ends]))
+
+
+def load_stores(paths: Sequence[str | Path], keys: Sequence[str], check_finite: bool = True) -> EpisodeArrays:
+    """Read ``keys`` of every store into memory; images are kept as uint8 to save memory."""
+    if not paths:
+        raise DataError("no dataset given (pass --dataset PATH)")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    ends, offset = [], 0
+    for path in paths:
+        store = EpisodeStore.open(path)
+        if store.n_episodes == 0:
+            raise DataError(f"{path}: holds no episodes")
+        for key in keys:
+            arr = store.read(key)
+            if check_finite and np.issubdtype(arr.dtype, np.floating):
+                if not np.all(np.isfinite(arr)):
+                    raise DataError(f"{path}: data/{key} holds NaN or inf")
+            if key in IMAGE_KEYS:
+                arr = np.clip(np.rint(arr), 0, 255).astype(np.uint8)
+            if parts[key] and parts[key][0].shape[1:] != arr.shape[1:]:
+                raise DataError(f"{path}: data/{key} rows are {arr.shape[1:]}, other stores have {parts[key][0].shape[1:]}")
+            parts[key].append(arr)
+        ends.append(store.episode_ends + offset)
+        offset += store.n_steps
+    return EpisodeArrays(
+        {k: np.concatenate(v) for k, v in parts.items()}, np.concatenate(ends), [str(p) for p in paths]
+    )
+
+
+class WindowDataset(Dataset):
+    """Each item: for every key, ``steps[key]`` consecutive steps of one padded window.
+
+    A policy keeps the first ``n_obs_steps`` observations and all ``horizon`` actions; a
+    world model keeps every step. Tensors are float32; images stay ``(T, H, W, C)`` 0..255.
+    """
+
+    def __init__(self, arrays: EpisodeArrays, episodes: np.ndarray, spec: WindowSpec, steps: dict[str, int]) -> None:
+        for key, n in steps.items():
+            if key not in arrays.data:
+                raise DataError(f"key {key!r} was not loaded (have {', '.join(arrays.data)})")
+            if not 1 <= n <= spec.horizon:
+                raise DataError(f"{key}: {n} steps do not fit a window of {spec.horizon}")
+        self.arrays, self.spec, self.steps = arrays, spec, steps
+        self.rows = window_starts(arrays.episode_ends, episodes, spec)
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        idx = window_indices(self.rows[i], self.spec.horizon)
+        return {
+            key: torch.from_numpy(np.ascontiguousarray(self.arrays.data[key][idx[:n]])).float()
+            for key, n in self.steps.items()
+        }

@@ -1,0 +1,115 @@
+"""`gpc`: collect data, inspect stores, check the simulator (training and planning follow)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from gpc_cli.errors import check_import_layout, run
+
+app = typer.Typer(
+    help="Generative Predictive Control: improve a frozen diffusion policy with a learned world model.",
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+)
+data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
+app.add_typer(data_app, name="data")
+
+
+@app.command()
+def collect(
+    out: Path = typer.Option(..., "--out", "-o", help="Zarr store to create or resume (a directory)."),
+    explore: bool = typer.Option(False, "--explore", help="Collect contact-rich exploration data instead of expert demonstrations."),
+    episodes: int = typer.Option(100, "--episodes", "-n", min=1, help="Number of episodes (seeds SEED .. SEED+N-1)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="First environment seed; keep clear of the test seeds (100000+)."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Parallel worker processes; the store is identical for any count."),
+    task: str = typer.Option("pusht", "--task", help="Task to collect from."),
+    goal: str = typer.Option("fixed", "--goal", help="fixed: the standard goal; random: a per-seed goal (GPC's variant)."),
+    images: bool = typer.Option(True, "--images/--no-images", help="Store 96x96 frames (key img)."),
+    max_steps: int = typer.Option(300, "--max-steps", min=1, help="Steps per episode at most."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store instead of resuming it."),
+) -> None:
+    """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from gpc_cli.collect import CollectJob, collect as run_collect
+
+    job = CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes,
+                     seed=seed, workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite)
+    with Progress(TextColumn("[bold]collect[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("score {task.fields[score]:.3f}"), TimeRemainingColumn(), transient=False) as bar:
+        tid = bar.add_task(job.kind, total=episodes, score=float("nan"))
+        scores: list[float] = []
+
+        def tick(stats: dict) -> None:
+            scores.append(stats["score"])
+            bar.update(tid, advance=1, score=sum(scores) / len(scores))
+
+        summary = run_collect(job, on_start=lambda skipped: bar.update(tid, completed=skipped), on_episode=tick)
+    typer.echo(json.dumps(summary.__dict__, indent=2))
+
+
+@data_app.command("info")
+def data_info(
+    path: Path = typer.Argument(..., help="Zarr episode store."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """Episodes, steps, keys and shapes, contact fraction and score distribution of a store."""
+    from gpc_cli.reports import describe_store, print_description
+
+    info = describe_store(path)
+    typer.echo(json.dumps(info, indent=2)) if as_json else print_description(info)
+
+
+@data_app.command("video")
+def data_video(
+    path: Path = typer.Argument(..., help="Zarr episode store."),
+    episode: int = typer.Option(0, "--episode", "-e", help="Episode index (negative counts from the end)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="MP4 to write (default: <store>_ep<i>.mp4)."),
+) -> None:
+    """Write one episode as an MP4."""
+    from gpc_cli.reports import episode_video
+
+    written = episode_video(path, episode, out)
+    typer.echo(f"wrote {written}")
+
+
+@app.command("check-sim")
+def check_sim(
+    data: Path = typer.Option(Path("../shared/data/pusht_human_train.zarr"), "--data", help="Recorded Push-T store (Diffusion Policy layout)."),
+    episodes: int = typer.Option(0, "--episodes", min=0, help="Check only the first N episodes (0: all)."),
+    frame_stride: int = typer.Option(10, "--frame-stride", min=1, help="Compare every k-th recorded frame."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Also write the figures as JSON here."),
+) -> None:
+    """Replay recorded actions and re-render recorded states; print how closely they match."""
+    from gpc_cli.reports import check_simulator, print_check
+
+    report = check_simulator(data, episodes, frame_stride)
+    print_check(report)
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2))
+
+
+@app.command("eval-expert")
+def eval_expert(
+    seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),
+    goal: str = typer.Option("fixed", "--goal", help="fixed or random goal."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write per-seed JSON and a Markdown summary to this directory."),
+) -> None:
+    """Score the scripted expert in closed loop (300 steps, max reward per episode)."""
+    from gpc_cli.reports import expert_report, parse_seeds
+
+    report = expert_report(parse_seeds(seeds), goal, out)
+    typer.echo(report)
+
+
+def main(argv: list[str] | None = None) -> None:
+    check_import_layout()
+    run(app, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,37 @@
+"""MP4 writing with OpenCV (no ffmpeg binary needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import cv2
+import numpy as np
+
+
+def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, scale: int = 1) -> int:
+    """Write RGB uint8 frames; returns how many were written. Written to a temporary name first."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial.mp4")
+    writer, n = None, 0
+    try:
+        for frame in frames:
+            frame = np.asarray(frame, dtype=np.uint8)
+            if scale != 1:
+                frame = cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+            if writer is None:
+                h, w = frame.shape[:2]
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+                if not writer.isOpened():
+                    raise OSError(f"{path}: OpenCV cannot write MP4 here")
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            n += 1
+    finally:
+        if writer is not None:
+            writer.release()
+    if n == 0:
+        tmp.unlink(missing_ok=True)
+        raise ValueError(f"{path}: no frames to write")
+    tmp.replace(path)
+    return n

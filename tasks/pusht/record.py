@@ -1,0 +1,92 @@
+"""Recording Push-T episodes in Diffusion Policy's data layout.
+
+Each step stores what was observed before acting and the action taken, as Diffusion
+Policy's recorder does: ``state``, ``keypoint`` (9x2), ``img`` (96x96x3, uint8 here),
+``action``, and ``n_contacts`` of the step that led to the observation. With a random
+goal the per-step ``goal`` pose is stored too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from tasks.pusht import geometry
+from tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
+from tasks.pusht.sim import PushTSim
+
+
+class ScriptedPolicy(Protocol):
+    """A privileged controller: reads the true scene, returns a target position."""
+
+    def reset(self, seed: int) -> None: ...
+
+    def act(self, sim: PushTSim, goal_pose: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """How long episodes run and what is stored."""
+
+    max_steps: int = MAX_EPISODE_STEPS
+    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
+    images: bool = True
+    goal: str = "fixed"
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
+
+
+@dataclass(frozen=True)
+class EpisodeStats:
+    seed: int
+    steps: int
+    score: float  # max reward over the episode (Diffusion Policy's score)
+    success: bool
+    contact_fraction: float
+
+
+def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
+    env = PushTEnv(obs_type="state", goal=config.goal)
+    _, info = env.reset(seed=seed)
+    policy.reset(seed)
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("state", "keypoint", "action", "n_contacts")}
+    if config.images:
+        rows["img"] = []
+    if config.goal == "random":
+        rows["goal"] = []
+    best, success, n_contacts, contacts = 0.0, False, 0, []
+    for _ in range(config.max_steps):
+        state = env.sim.state()
+        action = np.clip(np.asarray(policy.act(env.sim, env.goal_pose), dtype=np.float64), 0.0, geometry.WORKSPACE)
+        rows["state"].append(state)
+        rows["keypoint"].append(geometry.block_keypoints(state[2:5]))
+        rows["action"].append(action)
+        rows["n_contacts"].append(np.array([n_contacts], dtype=np.float64))
+        if config.images:
+            rows["img"].append(env.render())
+        if config.goal == "random":
+            rows["goal"].append(env.goal_pose.copy())
+        _, reward, terminated, _, info = env.step(action)
+        n_contacts = info["n_contacts"]
+        contacts.append(n_contacts > 0)
+        best = max(best, reward)
+        success = success or terminated
+        if terminated and config.stop_on_success:
+            break
+    data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
+    return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))
+
+
+def episode_scores(states: np.ndarray, episode_ends: np.ndarray, goal_pose: np.ndarray = geometry.GOAL_POSE) -> np.ndarray:
+    """Score (max reward) of each recorded episode, recomputed from its block poses."""
+    scores, start = [], 0
+    for end in episode_ends:
+        poses = states[start:end, 2:5]
+        scores.append(max(geometry.reward_from_coverage(geometry.coverage(p, goal_pose)) for p in poses))
+        start = int(end)
+    return np.array(scores)

@@ -1,0 +1,70 @@
+"""OpenCV renderer reproducing Diffusion Policy's pygame frames (no pygame needed).
+
+Drawn at the 512 px workspace resolution with the original's colours, outline widths and
+draw order, then resized like the original, so recorded frames and ours differ by well
+under one grey level on average.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, to_world
+from tasks.pusht.sim import AGENT_RADIUS, WALL_RADIUS, WALLS
+
+# RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255).
+GOAL = (144, 238, 144)  # LightGreen
+BLOCK_EDGE = (119, 136, 153)  # LightSlateGray
+BLOCK_FILL = (143, 163, 184)
+AGENT_EDGE = (65, 105, 225)  # RoyalBlue
+AGENT_FILL = (78, 126, 255)
+WALL = (211, 211, 211)  # LightGray
+_SIZE = int(WORKSPACE)
+
+
+def _ipts(points: np.ndarray) -> np.ndarray:
+    return np.round(points).astype(np.int32)
+
+
+def _fat_polyline(canvas: np.ndarray, pts: np.ndarray, radius: float, color: tuple[int, int, int]) -> None:
+    """A closed outline of round-capped segments, as pymunk's debug draw makes it."""
+    for a, b in zip(pts, np.roll(pts, -1, axis=0)):
+        _fat_segment(canvas, a, b, radius, color)
+
+
+def _fat_segment(canvas: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float, color: tuple[int, int, int]) -> None:
+    pa, pb = _ipts(a), _ipts(b)
+    cv2.line(canvas, tuple(pa.tolist()), tuple(pb.tolist()), color, thickness=int(round(2 * radius)))
+    for p in (pa, pb):
+        cv2.circle(canvas, tuple(p.tolist()), int(round(radius)), color, thickness=-1)
+
+
+def draw_scene(
+    agent_xy: np.ndarray,
+    block_pose: np.ndarray,
+    goal_pose: np.ndarray = GOAL_POSE,
+    size: int = 96,
+) -> np.ndarray:
+    """RGB ``(size, size, 3)`` uint8 frame of one scene."""
+    canvas = np.full((_SIZE, _SIZE, 3), 255, dtype=np.uint8)
+    for box in TEE_BOXES:
+        cv2.fillPoly(canvas, [_ipts(to_world(box, goal_pose))], GOAL)
+    for a, b in WALLS:
+        _fat_segment(canvas, np.asarray(a, float), np.asarray(b, float), WALL_RADIUS, WALL)
+    center = tuple(_ipts(np.asarray(agent_xy, float)).tolist())
+    cv2.circle(canvas, center, int(round(AGENT_RADIUS)), AGENT_EDGE, thickness=-1)
+    cv2.circle(canvas, center, int(round(AGENT_RADIUS - 4)), AGENT_FILL, thickness=-1)
+    for box in TEE_BOXES:
+        world = to_world(box, block_pose)
+        cv2.fillPoly(canvas, [_ipts(world)], BLOCK_FILL)
+        _fat_polyline(canvas, world, 2.0, BLOCK_EDGE)
+    if size == _SIZE:
+        return canvas
+    return cv2.resize(canvas, (size, size))
+
+
+def draw_state(state: np.ndarray, goal_pose: np.ndarray = GOAL_POSE, size: int = 96) -> np.ndarray:
+    """Frame for a 5-d state vector ``[agent xy, block xy, block angle]``."""
+    state = np.asarray(state, dtype=np.float64)
+    return draw_scene(state[:2], state[2:5], goal_pose, size)
