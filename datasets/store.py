@@ -8,6 +8,8 @@ Crash safety: an episode is appended data first, then ``meta/episode_seeds``, an
 ``meta/episode_ends`` last (zarr writes every file atomically). ``episode_ends`` is the
 commit record: arrays longer than its last entry hold a half-written episode, which readers
 ignore and the next writer truncates, so a store killed at any moment holds whole episodes.
+zarr grows an array before writing the new chunk, so a trailing 0 in ``episode_ends`` is an
+append that never landed, and is dropped the same way.
 """
 
 from __future__ import annotations
@@ -81,6 +83,9 @@ class EpisodeStore:
         if "data" not in self.root:
             raise DataError(f"{self.path}: missing group data/")
         ends = np.asarray(self.root["meta/episode_ends"][:], dtype=np.int64)
+        if ends.size and ends[-1] == 0 and (ends.size == 1 or ends[-2] > 0):
+            # Grown but not yet filled: a writer died between zarr's resize and its chunk write.
+            ends = ends[:-1]
         if ends.size and (ends[0] <= 0 or np.any(np.diff(ends) <= 0)):
             raise DataError(f"{self.path}: meta/episode_ends is not strictly increasing and positive")
         self._ends = ends
@@ -97,6 +102,8 @@ class EpisodeStore:
         for _, arr in self.root["data"].arrays():
             if arr.shape[0] > n:
                 arr.resize((n,) + arr.shape[1:])
+        if self.root["meta/episode_ends"].shape[0] > e:
+            self.root["meta/episode_ends"].resize((e,))
         for name in ("episode_seeds", "episode_scores"):
             if name in self.root["meta"] and self.root["meta"][name].shape[0] > e:
                 self.root["meta"][name].resize((e,))

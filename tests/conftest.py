@@ -1,0 +1,32 @@
+"""Shared fixtures: the real human Push-T data beside the checkout, when it is there."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+HUMAN_DATA = Path(os.environ.get("GPC_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "pusht_human_train.zarr"
+
+
+@pytest.fixture(scope="session")
+def human_data() -> Path:
+    if not HUMAN_DATA.exists():
+        pytest.skip(f"real Push-T data not found at {HUMAN_DATA} (it ships in ../shared beside the checkout)")
+    return HUMAN_DATA
+
+
+@pytest.fixture(scope="session")
+def human_arrays(human_data: Path) -> dict:
+    from datasets.store import EpisodeStore
+
+    store = EpisodeStore.open(human_data)
+    return {
+        "state": store.read("state").astype("float64"),
+        "action": store.read("action").astype("float64"),
+        "keypoint": store.read("keypoint").astype("float64"),
+        "n_contacts": store.read("n_contacts"),
+        "episode_ends": store.episode_ends,
+        "store": store,
+    }
