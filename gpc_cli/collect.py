@@ -37,7 +37,9 @@ class CollectJob:
     overwrite: bool = False
 
     def __post_init__(self) -> None:
-        get_task(self.task)  # raises for an unknown task
+        task = get_task(self.task)  # raises for an unknown task
+        if self.goal not in task.GOAL_MODES:
+            raise ValueError(f"--goal {self.goal!r}: use one of {', '.join(task.GOAL_MODES)}")
         if self.kind not in ("expert", "explore"):
             raise ValueError(f"collector {self.kind!r}: use expert or explore")
         for name in ("episodes", "workers", "max_steps"):

@@ -5,17 +5,15 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Any, NoReturn
 
 import typer
+from typer.core import TyperGroup
 
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, KeyError, NotADirectoryError, PermissionError)
 
 
-class UsageProblem(ValueError):
-    """Raised by commands for a bad option value; the message names the option."""
-
-
-def fail(message: str) -> "NoReturn":  # noqa: F821 - typing only
+def fail(message: str) -> NoReturn:
     print(f"gpc: error: {message}", file=sys.stderr)
     raise SystemExit(2)
 
@@ -33,22 +31,25 @@ def check_import_layout() -> None:
         )
 
 
-def run(app: typer.Typer, argv: list[str] | None = None) -> None:
-    """Invoke ``app``; user errors print one line (set GPC_DEBUG=1 for the traceback)."""
-    try:
-        typer.main.get_command(app).main(args=argv, prog_name="gpc", standalone_mode=False)
-    except typer.Abort:
-        fail("aborted")
-    except typer.Exit as exc:
-        raise SystemExit(exc.exit_code) from None
-    except typer.TyperException as exc:  # usage errors: unknown option, bad value, missing argument
-        message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
-        if type(exc).__name__ == "NoArgsIsHelpError":
-            print(message)
-            raise SystemExit(0) from None
-        fail(" ".join(message.split()))
-    except USER_ERRORS as exc:
-        if os.environ.get("GPC_DEBUG"):
-            raise
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        fail(str(msg).splitlines()[0] if str(msg) else type(exc).__name__)
+class OneLineErrors(TyperGroup):
+    """The root command: user errors print one line (GPC_DEBUG=1 keeps the traceback)."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, **extra: Any) -> Any:
+        extra.pop("standalone_mode", None)
+        try:
+            return super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+        except typer.Abort:
+            fail("aborted")
+        except typer.Exit as exc:
+            raise SystemExit(exc.exit_code) from None
+        except typer.TyperException as exc:  # usage: unknown option, bad value, missing argument
+            message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+            if type(exc).__name__ == "NoArgsIsHelpError":
+                print(message)
+                raise SystemExit(0) from None
+            fail(" ".join(message.split()))
+        except USER_ERRORS as exc:
+            if os.environ.get("GPC_DEBUG"):
+                raise
+            msg = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
+            fail(msg.splitlines()[0] if msg else type(exc).__name__)

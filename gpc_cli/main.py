@@ -8,11 +8,11 @@ from typing import Optional
 
 import typer
 
-from gpc_cli.errors import check_import_layout, run
+from gpc_cli.errors import OneLineErrors, check_import_layout
 
 app = typer.Typer(
     help="Generative Predictive Control: improve a frozen diffusion policy with a learned world model.",
-    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+    cls=OneLineErrors, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
 )
 data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
 app.add_typer(data_app, name="data")
@@ -38,16 +38,22 @@ def collect(
 
     job = CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes,
                      seed=seed, workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite)
-    with Progress(TextColumn("[bold]collect[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("score {task.fields[score]:.3f}"), TimeRemainingColumn(), transient=False) as bar:
-        tid = bar.add_task(job.kind, total=episodes, score=float("nan"))
-        scores: list[float] = []
+    bar = Progress(TextColumn("[bold]collect[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("mean score {task.fields[score]:.3f}"), TimeRemainingColumn())
+    scores: list[float] = []
 
-        def tick(stats: dict) -> None:
-            scores.append(stats["score"])
-            bar.update(tid, advance=1, score=sum(scores) / len(scores))
+    def start(already: int) -> None:  # called once the store is open, so errors come before any bar
+        bar.add_task(job.kind, total=episodes, completed=already, score=float("nan"))
+        bar.start()
 
-        summary = run_collect(job, on_start=lambda skipped: bar.update(tid, completed=skipped), on_episode=tick)
+    def tick(stats: dict) -> None:
+        scores.append(stats["score"])
+        bar.update(bar.task_ids[0], advance=1, score=sum(scores) / len(scores))
+
+    try:
+        summary = run_collect(job, on_start=start, on_episode=tick)
+    finally:
+        bar.stop()
     typer.echo(json.dumps(summary.__dict__, indent=2))
 
 
@@ -106,9 +112,9 @@ def eval_expert(
     typer.echo(report)
 
 
-def main(argv: list[str] | None = None) -> None:
+def main() -> None:
     check_import_layout()
-    run(app, argv)
+    app()
 
 
 if __name__ == "__main__":

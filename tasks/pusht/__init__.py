@@ -11,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from tasks.pusht import geometry
-from tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
+from tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
 from tasks.pusht.render import draw_state as render_state
 from tasks.pusht.record import EpisodeStats, RecordConfig, ScriptedPolicy, episode_scores, record_episode
 from tasks.pusht.sim import CONTROL_HZ, K_P, K_V, SIM_HZ
@@ -74,7 +74,7 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
 
 
 __all__ = [
-    "pose_coverage", "render_state",
+    "GOAL_MODES",    "pose_coverage", "render_state",
     "ENV_ID", "PushTEnv", "RecordConfig", "EpisodeStats", "collector_params", "env_params",
     "episode_scores", "record", "record_keys", "scripted_policy",
 ]
