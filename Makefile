@@ -6,6 +6,22 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.gpc-installed
 # The CPU build of torch; a plain `torch` requirement could pull a multi-GB CUDA build.
 TORCH_SPEC ?= torch==2.13.0
+WORKERS ?= 2
+RUN_DIR ?= runs/pusht-$(PROFILE)
+
+# Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
+ifeq ($(PROFILE),smoke)
+  EXPERT_EPISODES := 4
+  EXPLORE_EPISODES := 4
+else ifeq ($(PROFILE),paper)
+  EXPERT_EPISODES := 1000
+  EXPLORE_EPISODES := 1000
+else ifeq ($(PROFILE),cpu)
+  EXPERT_EPISODES := 200
+  EXPLORE_EPISODES := 200
+else
+  $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
+endif
 
 .PHONY: help venv test bench reproduce-pusht check-sim clean
 
@@ -33,8 +49,14 @@ bench: $(STAMP)
 check-sim: $(STAMP)
 	$(BIN)/gpc check-sim
 
+# Each stage resumes: re-running skips the episodes already collected.
 reproduce-pusht: $(STAMP)
-	PROFILE=$(PROFILE) $(BIN)/python -m gpc_cli.reproduce pusht
+	$(BIN)/gpc collect --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
+	$(BIN)/gpc collect --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
+	$(BIN)/gpc data info $(RUN_DIR)/expert.zarr
+	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
+	@echo "Stages to come (open issues): train the diffusion policy, train the world model (phase 1, 2)"
+	@echo "and the rewards, evaluate BC, GPC-RANK, GPC-OPT, GPC-RANK+OPT and the baselines into results/."
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

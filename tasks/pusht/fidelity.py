@@ -68,3 +68,36 @@ def render_errors(states: np.ndarray, images: np.ndarray) -> np.ndarray:
         ours = draw_state(np.asarray(s, dtype=np.float64), size=img.shape[0]).astype(np.float32)
         out[i] = np.abs(ours - np.asarray(img, dtype=np.float32)).mean()
     return out
+
+
+def restore_divergence(states: np.ndarray, actions: np.ndarray, episode_ends: np.ndarray,
+                       samples: int = 200, horizon: int = 16, seed: int = 0) -> np.ndarray:
+    """Block-position gap (px) after ``horizon`` steps between a run and its restored replay.
+
+    Measures what the snapshot leaves out (pymunk's private contact warm-start cache): at
+    random recorded moments, step ``horizon`` recorded actions, restore, step them again.
+    """
+    states = np.asarray(states, dtype=np.float64)
+    actions = np.asarray(actions, dtype=np.float64)
+    ends = np.asarray(episode_ends, dtype=np.int64)
+    starts = np.concatenate([[0], ends[:-1]])
+    rng = np.random.default_rng(seed)
+    gaps = []
+    while len(gaps) < samples:
+        e = int(rng.integers(len(ends)))
+        if ends[e] - starts[e] <= horizon + 2:
+            continue
+        t = int(rng.integers(1, ends[e] - starts[e] - horizon))
+        sim = PushTSim()
+        sim.set_state(states[starts[e]])
+        for k in range(starts[e], starts[e] + t):
+            sim.step(actions[k])
+        snap = sim.snapshot()
+        for k in range(starts[e] + t, starts[e] + t + horizon):
+            sim.step(actions[k])
+        first = sim.block_pose()
+        sim.restore(snap)
+        for k in range(starts[e] + t, starts[e] + t + horizon):
+            sim.step(actions[k])
+        gaps.append(float(np.abs(sim.block_pose()[:2] - first[:2]).max()))
+    return np.array(gaps)
