@@ -66,15 +66,11 @@ def record_keys(images: bool, goal: str) -> list[str]:
 
 def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12)) -> float:
     """Fraction of a (block x, block y, block angle) grid that the states visit."""
-    states = np.asarray(states, dtype=np.float64)
-    x = np.clip((states[:, 2] / geometry.WORKSPACE * bins[0]).astype(int), 0, bins[0] - 1)
-    y = np.clip((states[:, 3] / geometry.WORKSPACE * bins[1]).astype(int), 0, bins[1] - 1)
-    a = np.clip((states[:, 4] % (2 * np.pi) / (2 * np.pi) * bins[2]).astype(int), 0, bins[2] - 1)
-    return float(np.unique((x * bins[1] + y) * bins[2] + a).size / np.prod(bins))
+    return len(geometry.pose_cells(states, bins)) / float(np.prod(bins))
 
 
 __all__ = [
-    "GOAL_MODES",    "pose_coverage", "render_state",
+    "GOAL_MODES", "pose_coverage", "render_state",
     "ENV_ID", "PushTEnv", "RecordConfig", "EpisodeStats", "collector_params", "env_params",
     "episode_scores", "record", "record_keys", "scripted_policy",
 ]

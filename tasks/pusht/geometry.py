@@ -126,3 +126,12 @@ def registration_error(pose: np.ndarray, goal_pose: np.ndarray = GOAL_POSE) -> n
     a = tee_vertices(pose).reshape(np.shape(pose)[:-1] + (8, 2))
     b = tee_vertices(goal_pose).reshape(np.shape(goal_pose)[:-1] + (8, 2))
     return np.linalg.norm(a - b, axis=-1).mean(axis=-1)
+
+
+def pose_cells(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12)) -> set[int]:
+    """Occupied cells of a (block x, block y, block angle) grid over [0, 512)^2 x [0, 2pi)."""
+    states = np.asarray(states, dtype=np.float64)
+    x = np.clip((states[:, 2] / WORKSPACE * bins[0]).astype(int), 0, bins[0] - 1)
+    y = np.clip((states[:, 3] / WORKSPACE * bins[1]).astype(int), 0, bins[1] - 1)
+    a = np.clip((states[:, 4] % (2 * np.pi) / (2 * np.pi) * bins[2]).astype(int), 0, bins[2] - 1)
+    return set(((x * bins[1] + y) * bins[2] + a).tolist())
