@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import append_rows, median_seconds, show
-from tasks.pusht import record
+from tasks.pusht.record import RecordConfig, record_episode
 from tasks.pusht.env import PushTEnv
 
 
@@ -42,8 +42,8 @@ def run(readme: Path | None) -> list[list[str]]:
     for kind in ("expert", "explore"):
         for seed in range(3):
             t0 = time.perf_counter()
-            _, stats = record.record_episode(scripted_policy(kind), seed, record.RecordConfig(
-                stop_on_success=kind == "expert", images=True))
+            _, stats = record_episode(scripted_policy(kind), seed,
+                                      RecordConfig(stop_on_success=kind == "expert", images=True))
             times.append((kind, time.perf_counter() - t0, stats.steps))
     expert = [t for k, t, _ in times if k == "expert"]
     explore = [t for k, t, _ in times if k == "explore"]

@@ -146,7 +146,11 @@ def print_check(report: dict) -> None:
 def expert_report(seeds: list[int], goal: str, out: Path | None) -> str:
     from tasks.pusht.expert import evaluate_expert
 
-    res = evaluate_expert(seeds, goal=goal)
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        tid = bar.add_task("expert episodes", total=len(seeds))
+        res = evaluate_expert(seeds, goal=goal, on_episode=lambda _: bar.advance(tid))
     md = (
         f"| seeds | goal | mean score | success rate | s/episode p50 | s/episode max |\n|---|---|---|---|---|---|\n"
         f"| {seeds[0]}..{seeds[-1]} ({len(seeds)}) | {goal} | {res['mean_score']:.3f} | {res['success_rate']:.2f} | "

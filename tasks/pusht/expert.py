@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -363,21 +363,21 @@ class PushTExpert:
 
 
 def evaluate_expert(seeds: Sequence[int], goal: str = "fixed", config: ExpertConfig = ExpertConfig(),
-                    max_steps: int = 300) -> dict:
+                    max_steps: int = 300, on_episode: Callable[[dict], None] | None = None) -> dict:
     """Closed-loop score of the expert: max reward per episode, stopping at success."""
-    from tasks.pusht.env import PushTEnv
+    from tasks.pusht.record import RecordConfig, record_episode
 
-    env, expert = PushTEnv(obs_type="state", goal=goal), PushTExpert(config)
+    record = RecordConfig(max_steps=max_steps, stop_on_success=True, images=False, goal=goal)
     res: dict = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
     for seed in res["seeds"]:
-        t0, best, done, n = time.perf_counter(), 0.0, False, 0
-        env.reset(seed=seed)
-        expert.reset(seed)
-        while n < max_steps and not done:
-            _, reward, done, _, _ = env.step(expert.act(env.sim, env.goal_pose))
-            best, n = max(best, reward), n + 1
-        for key, value in zip(("scores", "successes", "steps", "seconds"), (best, done, n, time.perf_counter() - t0)):
+        t0 = time.perf_counter()
+        _, stats = record_episode(PushTExpert(config), seed, record)
+        row = {"scores": stats.score, "successes": stats.success, "steps": stats.steps,
+               "seconds": time.perf_counter() - t0}
+        for key, value in row.items():
             res[key].append(value)
+        if on_episode:
+            on_episode(row)
     res.update(mean_score=float(np.mean(res["scores"])), success_rate=float(np.mean(res["successes"])),
                median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
     return res
