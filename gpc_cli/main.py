@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from gpc_cli.errors import OneLineErrors, check_import_layout
+from gpc_cli.train import train_app
 
 app = typer.Typer(
     help="Generative Predictive Control: improve a frozen diffusion policy with a learned world model.",
@@ -16,6 +17,7 @@ app = typer.Typer(
 )
 data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
 app.add_typer(data_app, name="data")
+app.add_typer(train_app, name="train")
 
 
 @app.command()

@@ -1,1 +1,17 @@
-"""LightningModules for the policy, world models and reward predictors (see the later issues)."""
+"""Networks and LightningModules (policy now; world models and reward predictors follow).
+
+Split as DIAMOND splits its diffusion stack:
+
+- plain networks: ``unet1d`` (Diffusion Policy's FiLM 1-D U-Net), ``resnet`` (ResNet18 with
+  GroupNorm, spatial softmax), ``encoders`` (one observation-encoder interface for state,
+  keypoint and image observations);
+- diffusion: ``diffusion`` (DDPM schedule, DDPM/DDIM samplers), ``ema`` (EMA weights);
+- the policy: ``policy_config`` (frozen configs and profiles), ``denoiser`` (network + DDPM
+  loss), ``policy`` (``PolicyModule``: batch in, loss and logs out; ``sample`` /
+  ``sample_batch`` out), ``checkpoint`` (kind/task records, clear load errors),
+  ``training`` (``train_policy``: one run with best/last checkpoints and resume);
+- ``protocols``: the interfaces planners use.
+
+Submodules are imported explicitly (``from models.policy import PolicyModule``) so that
+importing one piece does not pull in Lightning. ``models`` imports ``datasets`` only.
+"""

@@ -1,0 +1,46 @@
+"""Frozen dataclass configs <-> plain dicts (the form checkpoints store as hyper-parameters).
+
+Plain means dicts, tuples, strings and numbers only, so a checkpoint loads with
+``torch.load(weights_only=True)`` and reads back without this library's classes pickled in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+def to_plain(config: Any) -> dict[str, Any]:
+    """Nested dataclasses become nested dicts; tuples stay tuples."""
+    return dataclasses.asdict(config)
+
+
+def _tuples(value: Any) -> Any:
+    """Lists (as YAML or JSON round trips write tuples) become tuples, recursively."""
+    if isinstance(value, (list, tuple)):
+        return tuple(_tuples(v) for v in value)
+    return value
+
+
+def from_plain(cls: type[T], data: dict[str, Any] | T) -> T:
+    """Rebuild ``cls`` from ``to_plain``'s output; unknown keys raise a ValueError naming them."""
+    if isinstance(data, cls):
+        return data
+    if not isinstance(data, dict):
+        raise ValueError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown field(s) {', '.join(unknown)}")
+    kwargs = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            kwargs[name] = from_plain(hint, value)
+        else:
+            kwargs[name] = _tuples(value)
+    return cls(**kwargs)

@@ -1,0 +1,141 @@
+"""DDPM noise schedule and DDPM / DDIM samplers (epsilon prediction), as Diffusion Policy uses them.
+
+We write the ~100 lines ourselves rather than add ``diffusers``: that package would bring a
+hub client and a dozen transitive dependencies for two update rules, and its schedulers
+keep per-call state (``set_timesteps``) that is awkward to share between a trained module
+and concurrent samplers. The formulas follow diffusers' conventions exactly, so a policy
+behaves as Diffusion Policy's (``DDPMScheduler`` / ``DDIMScheduler`` with
+``squaredcos_cap_v2`` betas, ``fixed_small`` variance, ``clip_sample``, ``set_alpha_to_one``,
+"leading" timestep spacing, eta 0); ``tests/test_policy_diffusion.py`` checks them against
+reference values computed by hand. Coefficients are computed in float64.
+
+Notation: ``ab[t]`` is the cumulative product of ``1 - beta`` up to step ``t`` (diffusers'
+``alphas_cumprod``); ``ab[-1] = 1``. Training noises ``x0`` to
+``x_t = sqrt(ab[t]) x0 + sqrt(1 - ab[t]) eps`` and the network predicts ``eps``.
+A chain of ``S`` steps visits ``t = (S-1) r, ..., r, 0`` with ``r = N // S`` and steps
+from ``t`` to ``p = t - r``:
+
+- DDPM: ``x_p = c0 x0_hat + ct x_t + sigma z`` (posterior mean plus ``fixed_small`` noise, none at t = 0),
+- DDIM (eta 0): ``x_p = sqrt(ab[p]) x0_hat + sqrt(1 - ab[p]) eps_hat`` (deterministic),
+
+where ``x0_hat`` is clipped to ``[-clip, clip]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+BETA_SCHEDULES = ("squaredcos_cap_v2",)
+SAMPLERS = ("ddpm", "ddim")
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """The training noise process."""
+
+    train_steps: int = 100  # diffusion steps N (Diffusion Policy: 100)
+    beta_schedule: str = "squaredcos_cap_v2"  # cosine schedule of Nichol & Dhariwal, betas capped at max_beta
+    max_beta: float = 0.999  # cap on each beta
+    clip_sample: float = 1.0  # clip predicted clean samples to [-clip, clip]; 0 disables clipping
+
+    def __post_init__(self) -> None:
+        if self.train_steps < 1:
+            raise ValueError(f"train_steps {self.train_steps}: must be at least 1")
+        if self.beta_schedule not in BETA_SCHEDULES:
+            raise ValueError(f"beta_schedule {self.beta_schedule!r}: use one of {', '.join(BETA_SCHEDULES)}")
+        if not 0 < self.max_beta < 1:
+            raise ValueError(f"max_beta {self.max_beta}: must lie in (0, 1)")
+        if self.clip_sample < 0:
+            raise ValueError(f"clip_sample {self.clip_sample}: must be >= 0 (0 disables clipping)")
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """How samples are drawn at inference."""
+
+    method: str = "ddim"  # ddim (deterministic, few steps; CPU default) or ddpm (stochastic full chain)
+    steps: int = 10  # denoising steps; at most NoiseConfig.train_steps (ddpm normally uses all of them)
+
+    def __post_init__(self) -> None:
+        if self.method not in SAMPLERS:
+            raise ValueError(f"sampler {self.method!r}: use one of {', '.join(SAMPLERS)}")
+        if self.steps < 1:
+            raise ValueError(f"sampler steps {self.steps}: must be at least 1")
+
+
+def squaredcos_betas(n: int, max_beta: float = 0.999) -> list[float]:
+    """``beta_i = min(1 - f((i+1)/n) / f(i/n), max_beta)`` with ``f(s) = cos((s + 0.008) / 1.008 * pi/2)^2``."""
+    f = lambda s: math.cos((s + 0.008) / 1.008 * math.pi / 2) ** 2  # noqa: E731
+    return [min(1 - f((i + 1) / n) / f(i / n), max_beta) for i in range(n)]
+
+
+class NoiseSchedule:
+    """Cumulative signal levels ``ab[t]`` and the forward (noising) process."""
+
+    def __init__(self, config: NoiseConfig) -> None:
+        self.config = config
+        betas = torch.tensor(squaredcos_betas(config.train_steps, config.max_beta), dtype=torch.float64)
+        self.alpha_bar = torch.cumprod(1.0 - betas, dim=0)  # float64, CPU
+
+    @property
+    def train_steps(self) -> int:
+        return self.config.train_steps
+
+    def ab(self, t: int) -> float:
+        """``ab[t]`` as a Python float, with ``ab[t] = 1`` for ``t < 0``."""
+        return 1.0 if t < 0 else float(self.alpha_bar[t])
+
+    def add_noise(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """``x0, noise (B, ...)``, integer ``t (B,)`` -> ``x_t (B, ...)``."""
+        ab = self.alpha_bar.to(torch.float32).to(x0.device)[t].to(x0.dtype).reshape((-1,) + (1,) * (x0.dim() - 1))
+        return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
+
+    def predict_x0(self, x: torch.Tensor, eps: torch.Tensor, t: int) -> torch.Tensor:
+        ab = self.ab(t)
+        x0 = (x - math.sqrt(1.0 - ab) * eps) / math.sqrt(ab)
+        clip = self.config.clip_sample
+        return x0.clamp(-clip, clip) if clip > 0 else x0
+
+
+Denoise = Callable[[torch.Tensor, int], torch.Tensor]  # (x_t, t) -> predicted eps, same shape
+DrawNoise = Callable[[], torch.Tensor]  # -> a standard normal tensor shaped like the sample
+
+
+class DiffusionSampler:
+    """Runs a DDPM or DDIM chain from given initial noise; stateless between calls."""
+
+    def __init__(self, schedule: NoiseSchedule, config: SamplerConfig) -> None:
+        if config.steps > schedule.train_steps:
+            raise ValueError(f"sampler steps {config.steps} exceed the {schedule.train_steps} training steps")
+        self.schedule, self.config = schedule, config
+        self.stride = schedule.train_steps // config.steps
+
+    def timesteps(self) -> list[int]:
+        """Steps visited, first to last (diffusers' "leading" spacing, offset 0)."""
+        return [i * self.stride for i in range(self.config.steps)][::-1]
+
+    def step(self, x: torch.Tensor, eps: torch.Tensor, t: int, noise: DrawNoise | None) -> torch.Tensor:
+        """One update from ``x_t`` to ``x_{t - stride}``; ``noise`` is drawn only by DDPM at t > 0."""
+        s = self.schedule
+        prev = t - self.stride
+        ab_t, ab_p = s.ab(t), s.ab(prev)
+        x0 = s.predict_x0(x, eps, t)
+        if self.config.method == "ddim":
+            return math.sqrt(ab_p) * x0 + math.sqrt(1.0 - ab_p) * eps
+        alpha = ab_t / ab_p
+        beta = 1.0 - alpha
+        mean = (math.sqrt(ab_p) * beta / (1.0 - ab_t)) * x0 + (math.sqrt(alpha) * (1.0 - ab_p) / (1.0 - ab_t)) * x
+        if t == 0 or noise is None:
+            return mean
+        variance = max((1.0 - ab_p) / (1.0 - ab_t) * beta, 1e-20)
+        return mean + math.sqrt(variance) * noise()
+
+    def sample(self, denoise: Denoise, x: torch.Tensor, noise: DrawNoise) -> torch.Tensor:
+        """Denoise initial noise ``x`` through the whole chain and return the final sample."""
+        for t in self.timesteps():
+            x = self.step(x, denoise(x, t), t, noise)
+        return x
