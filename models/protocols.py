@@ -1,9 +1,11 @@
-"""The small interfaces planners depend on (structural: any object with these methods fits)."""
+"""The small interfaces planners and the evaluation harness depend on (structural typing)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
+import numpy as np
 import torch
 
 
@@ -22,4 +24,25 @@ class ActionProposer(Protocol):
         generator: torch.Generator | Sequence[torch.Generator] | None = None,
     ) -> torch.Tensor:
         """``{key: (B, T, ...)}`` -> ``(B, K, horizon, action_dim)``; one generator per history repeats ``sample``."""
+        ...
+
+
+@dataclass
+class Plan:
+    """A controller's decision for B observation histories."""
+
+    actions: np.ndarray  # (B, n_exec, A): to execute now (receding horizon)
+    chunk: np.ndarray  # (B, T', A): the planned chunk from the current step on (actions is its head)
+    seconds: dict[str, float] = field(default_factory=dict)  # time by part: policy, world_model, reward, optimizer
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """Anything that maps observation histories to action chunks: the policy itself (BC) or a planner."""
+
+    obs_keys: tuple[str, ...]  # data keys it reads (state, keypoint, img, ...)
+    n_obs_steps: int  # history length it needs
+
+    def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
+        """``{key: (B, n_obs_steps, ...)}`` -> a Plan; ``generators[b]`` is history b's own random stream."""
         ...

@@ -12,8 +12,8 @@ import numpy as np
 
 from tasks.pusht import geometry
 from tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
-from tasks.pusht.render import draw_state as render_state
-from tasks.pusht.record import EpisodeStats, RecordConfig, ScriptedPolicy, episode_scores, record_episode
+from tasks.pusht.render import draw_plan, draw_state as render_state
+from tasks.pusht.record import EpisodeStats, RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
 from tasks.pusht.sim import CONTROL_HZ, K_P, K_V, SIM_HZ
 
 ENV_ID = "gpc/PushT-v0"
@@ -70,7 +70,7 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
 
 
 __all__ = [
-    "GOAL_MODES", "pose_coverage", "render_state",
-    "ENV_ID", "PushTEnv", "RecordConfig", "EpisodeStats", "collector_params", "env_params",
-    "episode_scores", "record", "record_keys", "scripted_policy",
+    "ENV_ID", "GOAL_MODES", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_plan",
+    "env_params", "episode_scores", "observe", "pose_coverage", "record", "record_keys", "render_state",
+    "scripted_policy",
 ]

@@ -139,7 +139,11 @@ class PushTEnv(gym.Env):
         return self._obs(), reward, terminated, False, self._info(cov, n_contacts)
 
     def render(self) -> np.ndarray:
-        return draw_scene(self.sim.state()[:2], self.sim.block_pose(), self.goal_pose, self.config.render_size)
+        return self.frame(self.config.render_size)
+
+    def frame(self, size: int) -> np.ndarray:
+        """The scene drawn at ``size`` px (videos use a larger size than observations)."""
+        return draw_scene(self.sim.state()[:2], self.sim.block_pose(), self.goal_pose, size)
 
     # ------------------------------------------------------------------ helpers
     def _obs(self):

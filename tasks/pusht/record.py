@@ -49,28 +49,33 @@ class EpisodeStats:
     contact_fraction: float
 
 
+def observe(env: PushTEnv, images: bool = True) -> dict[str, np.ndarray]:
+    """One step's observation in the data layout (``state``, ``keypoint``, ``img``, ``goal``).
+
+    Recording and closed-loop evaluation both use it, so a policy sees at test time exactly
+    the keys, shapes and dtypes it was trained on.
+    """
+    state = env.sim.state()
+    obs = {"state": state.astype(np.float32), "keypoint": geometry.block_keypoints(state[2:5]).astype(np.float32)}
+    if images:
+        obs["img"] = env.render()
+    if env.config.goal == "random":
+        obs["goal"] = env.goal_pose.astype(np.float32)
+    return obs
+
+
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
     env = PushTEnv(obs_type="state", goal=config.goal)
     _, info = env.reset(seed=seed)
     policy.reset(seed)
-    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("state", "keypoint", "action", "n_contacts")}
-    if config.images:
-        rows["img"] = []
-    if config.goal == "random":
-        rows["goal"] = []
+    rows: dict[str, list[np.ndarray]] = {}
     best, success, n_contacts, contacts = 0.0, False, 0, []
     for _ in range(config.max_steps):
-        state = env.sim.state()
         action = np.clip(np.asarray(policy.act(env.sim, env.goal_pose), dtype=np.float64), 0.0, geometry.WORKSPACE)
-        rows["state"].append(state)
-        rows["keypoint"].append(geometry.block_keypoints(state[2:5]))
-        rows["action"].append(action)
-        rows["n_contacts"].append(np.array([n_contacts], dtype=np.float64))
-        if config.images:
-            rows["img"].append(env.render())
-        if config.goal == "random":
-            rows["goal"].append(env.goal_pose.copy())
+        step = {**observe(env, config.images), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
+        for key, value in step.items():
+            rows.setdefault(key, []).append(value)
         _, reward, terminated, _, info = env.step(action)
         n_contacts = info["n_contacts"]
         contacts.append(n_contacts > 0)

@@ -1,0 +1,201 @@
+"""The closed-loop harness: any controller, many seeds, Diffusion Policy's scoring.
+
+Episodes are split into fixed groups of ``batch`` seeds; a group's episodes step in
+lockstep and the controller is called once per decision for the whole group (one batched
+policy call, not one per episode). Groups are the same whatever ``--workers`` is, each
+episode draws its randomness from its own generator (seeded by the sampling seed and the
+env seed), and every process uses the same number of torch threads, so results are
+identical for any worker count. Finished episodes stay in their group's batch with their
+last observation, which keeps each batched call identical from run to run.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import statistics
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+
+from models.protocols import Controller
+from tasks import get_task
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Which episodes to run and how."""
+
+    seeds: tuple[int, ...]
+    task: str = "pusht"
+    goal: str = "fixed"
+    max_steps: int = 300
+    batch: int = 25  # episodes per lockstep group (one controller call per decision per group)
+    workers: int = 1  # processes; results do not depend on it
+    threads: int = 1  # torch threads per process; results do depend on it (float reduction order)
+    sampling_seed: int = 0  # with the env seed, seeds each episode's random stream
+    video_dir: str | None = None
+    videos: int = 0  # MP4s for the first N seeds (with the planned chunk drawn)
+    video_size: int = 384
+
+    def __post_init__(self) -> None:
+        task = get_task(self.task)
+        if not self.seeds:
+            raise ValueError("--seeds: no seeds given")
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("--seeds: a seed is listed twice")
+        if self.goal not in task.GOAL_MODES:
+            raise ValueError(f"--goal {self.goal!r}: use one of {', '.join(task.GOAL_MODES)}")
+        for name in ("max_steps", "batch", "workers", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
+        if self.videos and not self.video_dir:
+            raise ValueError("--videos needs an output directory")
+
+    def groups(self) -> list[tuple[int, ...]]:
+        s = self.seeds
+        return [s[i : i + self.batch] for i in range(0, len(s), self.batch)]
+
+
+def episode_generator(sampling_seed: int, env_seed: int) -> torch.Generator:
+    """The random stream of one episode: the same for every planner and batch layout (paired runs)."""
+    state = np.random.SeedSequence([sampling_seed, env_seed]).generate_state(2, dtype=np.uint32)
+    return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+
+
+def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) -> dict[str, Any]:
+    """Run one lockstep group to the end: per-seed results and the group's call timings."""
+    task = get_task(config.task)
+    images = "img" in controller.obs_keys
+    envs = [task.PushTEnv(obs_type="state", goal=config.goal) for _ in seeds]
+    for env, seed in zip(envs, seeds):
+        env.reset(seed=seed)
+    gens = [episode_generator(config.sampling_seed, s) for s in seeds]
+    hist = [deque([task.observe(env, images)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
+    rows = [{"seed": int(s), "score": 0.0, "success": False, "steps": 0, "coverage_max": 0.0} for s in seeds]
+    done = [False] * len(seeds)
+    latencies: list[float] = []
+    parts: dict[str, float] = {}
+    films = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
+    while not all(done):
+        obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in controller.obs_keys}
+        t0 = time.perf_counter()
+        plan = controller.plan(obs, gens)
+        latencies.append(time.perf_counter() - t0)
+        for name, sec in plan.seconds.items():
+            parts[name] = parts.get(name, 0.0) + sec
+        for i, env in enumerate(envs):
+            if done[i]:
+                continue
+            for j, action in enumerate(plan.actions[i]):
+                if i in films:
+                    films[i].append(task.draw_plan(env.frame(config.video_size), plan.chunk[i][j:], len(plan.actions[i]) - j))
+                _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
+                row = rows[i]
+                row["steps"] += 1
+                row["score"] = max(row["score"], float(reward))
+                row["coverage_max"] = max(row["coverage_max"], float(info["coverage"]))
+                row["success"] = row["success"] or bool(terminated)
+                if terminated or row["steps"] >= config.max_steps:
+                    done[i] = True
+                    break
+            hist[i].append(task.observe(env, images))
+            rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
+    for i, film in films.items():
+        from gpc_cli.video import write_mp4
+
+        write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
+    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts}
+
+
+# ---------------------------------------------------------------------- processes
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(factory: Callable[[], Controller], threads: int) -> None:
+    torch.set_num_threads(threads)
+    _WORKER["controller"] = factory()
+
+
+def _work(args: tuple[tuple[int, ...], EvalConfig]) -> dict[str, Any]:
+    seeds, config = args
+    with torch.inference_mode():
+        return run_group(_WORKER["controller"], seeds, config)
+
+
+def evaluate(factory: Callable[[], Controller], config: EvalConfig,
+             on_group: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Run every seed; ``factory`` (picklable) builds the controller inside each process."""
+    t0 = time.perf_counter()
+    jobs = [(g, config) for g in config.groups()]
+    groups: list[dict[str, Any]] = []
+    for group in _map(factory, jobs, config):
+        groups.append(group)
+        if on_group:
+            on_group(group)
+    return summarize(groups, time.perf_counter() - t0, config)
+
+
+def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
+    if config.workers == 1 or len(jobs) == 1:
+        previous = torch.get_num_threads()
+        _init_worker(factory, config.threads)
+        try:
+            yield from map(_work, jobs)
+        finally:
+            torch.set_num_threads(previous)
+        return
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(min(config.workers, len(jobs)), initializer=_init_worker, initargs=(factory, config.threads)) as pool:
+        yield from pool.imap(_work, jobs, chunksize=1)
+
+
+def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> dict[str, Any]:
+    """Mean score, success rate and decision latency (per batched call and per episode decision)."""
+    rows = sorted((r for g in groups for r in g["episodes"]), key=lambda r: r["seed"])
+    calls = [c for g in groups for c in g["calls"]]
+    per_episode = [c / g["group_size"] for g in groups for c in g["calls"]]
+    parts: dict[str, float] = {}
+    for g in groups:
+        for name, sec in g["parts"].items():
+            parts[name] = parts.get(name, 0.0) + sec
+    total = sum(parts.values()) or 1.0
+    return {
+        "config": asdict(config),
+        "episodes": rows,
+        "mean_score": float(np.mean([r["score"] for r in rows])),
+        "success_rate": float(np.mean([r["success"] for r in rows])),
+        "call_latency_s": _latency(calls),
+        "decision_latency_s": _latency(per_episode),
+        "time_share": {k: v / total for k, v in parts.items()},
+        "wall_s": wall,
+    }
+
+
+def _latency(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"mean": float("nan"), "p50": float("nan"), "p95": float("nan")}
+    return {"mean": float(statistics.fmean(values)), "p50": float(np.percentile(values, 50)),
+            "p95": float(np.percentile(values, 95))}
+
+
+def write_results(result: dict[str, Any], out: Path, title: str) -> None:
+    """``episodes.json`` (per seed), ``summary.json`` and ``summary.md`` in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "episodes.json").write_text(json.dumps(result["episodes"], indent=1))
+    (out / "summary.json").write_text(json.dumps({k: v for k, v in result.items() if k != "episodes"}, indent=2))
+    c, d = result["call_latency_s"], result["decision_latency_s"]
+    seeds = result["config"]["seeds"]
+    md = (
+        f"# {title}\n\n| seeds | mean score | success rate | s/decision (per episode) mean / p50 / p95 "
+        f"| s/batched call mean / p50 / p95 | wall s |\n|---|---|---|---|---|---|\n"
+        f"| {seeds[0]}..{seeds[-1]} ({len(seeds)}) | {result['mean_score']:.3f} | {result['success_rate']:.2f} | "
+        f"{d['mean']:.4f} / {d['p50']:.4f} / {d['p95']:.4f} | {c['mean']:.3f} / {c['p50']:.3f} / {c['p95']:.3f} | "
+        f"{result['wall_s']:.0f} |\n"
+    )
+    (out / "summary.md").write_text(md)
