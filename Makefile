@@ -8,17 +8,24 @@ STAMP := $(VENV)/.gpc-installed
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
+RESULTS ?= results/pusht-$(PROFILE)
 
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
 ifeq ($(PROFILE),smoke)
   EXPERT_EPISODES := 4
   EXPLORE_EPISODES := 4
+  POLICY := --profile tiny --max-steps 40
+  EVAL := --seeds 100000:100004 --max-steps 40 --batch 4
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
+  POLICY := --profile paper
+  EVAL := --seeds 100000:100100 --batch 50
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
+  POLICY := --profile cpu
+  EVAL := --seeds 100000:100050 --batch 25
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
@@ -55,8 +62,14 @@ reproduce-pusht: $(STAMP)
 	$(BIN)/gpc collect --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/expert.zarr
 	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
-	@echo "Stages to come (open issues): train the diffusion policy, train the world model (phase 1, 2)"
-	@echo "and the rewards, evaluate BC, GPC-RANK, GPC-OPT, GPC-RANK+OPT and the baselines into results/."
+	test -f $(RUN_DIR)/policy/done || { \
+	  if [ -f $(RUN_DIR)/policy/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	  $(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs keypoints $(POLICY) --seed 0 \
+	    --out $(RUN_DIR)/policy $$resume && touch $(RUN_DIR)/policy/done; }
+	test -f $(RESULTS)/bc/summary.md || $(BIN)/gpc eval $(RUN_DIR)/policy/checkpoints/last.ckpt \
+	  $(EVAL) --workers $(WORKERS) --out $(RESULTS)/bc
+	@echo "Stages to come (open issues): train the world model (phase 1, 2) and the rewards, evaluate"
+	@echo "GPC-RANK, GPC-OPT, GPC-RANK+OPT and the baselines next to BC into results/pusht_state.md."
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

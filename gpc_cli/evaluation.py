@@ -199,3 +199,29 @@ def write_results(result: dict[str, Any], out: Path, title: str) -> None:
         f"{result['wall_s']:.0f} |\n"
     )
     (out / "summary.md").write_text(md)
+
+
+def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[str, Any]:
+    """Mean and spread of the score over several sampling seeds (same env seeds): ``summary.md/json``."""
+    scores = np.array([r["mean_score"] for r in results])
+    success = np.array([r["success_rate"] for r in results])
+    agg = {
+        "sampling_seeds": [r["config"]["sampling_seed"] for r in results],
+        "mean_scores": scores.tolist(), "success_rates": success.tolist(),
+        "mean_score": float(scores.mean()), "score_std": float(scores.std(ddof=1)) if len(scores) > 1 else 0.0,
+        "score_range": [float(scores.min()), float(scores.max())],
+        "success_rate": float(success.mean()),
+        "decision_latency_s_p50": float(np.median([r["decision_latency_s"]["p50"] for r in results])),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(agg, indent=2))
+    seeds = results[0]["config"]["seeds"]
+    rows = "".join(f"| {s} | {m:.3f} | {r:.2f} |\n" for s, m, r in zip(agg["sampling_seeds"], scores, success))
+    (out / "summary.md").write_text(
+        f"# {title}\n\nEnv seeds {seeds[0]}..{seeds[-1]} ({len(seeds)}), one row per sampling seed.\n\n"
+        f"| sampling seed | mean score | success rate |\n|---|---|---|\n{rows}"
+        f"| **all** | **{agg['mean_score']:.3f} +- {agg['score_std']:.3f}** (range {agg['score_range'][0]:.3f}-"
+        f"{agg['score_range'][1]:.3f}) | {agg['success_rate']:.2f} |\n\nMedian seconds per decision (per episode): "
+        f"{agg['decision_latency_s_p50']:.4f}\n"
+    )
+    return agg

@@ -121,7 +121,7 @@ def eval_policy(
     out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
     method: Optional[str] = typer.Option(None, "--method", help="ddim or ddpm (default: the checkpoint's)."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Denoising steps (default: the checkpoint's)."),
-    sampling_seed: int = typer.Option(0, "--sampling-seed", help="Seeds each episode's random stream (with its env seed)."),
+    sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
     workers: int = typer.Option(1, "--workers", "-j", min=1, help="Processes; results are identical for any count."),
     batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call."),
     threads: int = typer.Option(1, "--threads", min=1, help="Torch threads per process (part of what makes runs repeatable)."),
@@ -137,15 +137,23 @@ def eval_policy(
     from models.controllers import PolicyControllerFactory, SamplingConfig
     from models.policy import PolicyModule
 
-    config = EvalConfig(seeds=tuple(parse_seeds(seeds)), goal=goal, max_steps=max_steps, batch=batch,
-                        workers=workers, threads=threads, sampling_seed=sampling_seed,
-                        video_dir=str(out / "videos") if videos else None, videos=videos)
+    from gpc_cli.evaluation import write_spread
+
+    samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     factory = PolicyControllerFactory(str(checkpoint), SamplingConfig(method, steps))
     PolicyModule.load_from_checkpoint(str(checkpoint))  # fail here, with one line, on a bad checkpoint
-    with Progress() as bar:
-        tid = bar.add_task("episodes", total=len(config.seeds))
-        result = evaluate(factory, config, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
-    write_results(result, out, f"BC: {checkpoint}")
+    results = []
+    for s in samplings:
+        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), goal=goal, max_steps=max_steps, batch=batch,
+                            workers=workers, threads=threads, sampling_seed=s,
+                            video_dir=str(out / "videos") if videos and s == samplings[0] else None,
+                            videos=videos if s == samplings[0] else 0)
+        with Progress() as bar:
+            tid = bar.add_task(f"episodes (sampling seed {s})", total=len(config.seeds))
+            results.append(evaluate(factory, config, on_group=lambda g: bar.advance(tid, len(g["episodes"]))))
+        write_results(results[-1], out / f"sampling-seed-{s}" if len(samplings) > 1 else out, f"BC: {checkpoint}")
+    if len(samplings) > 1:
+        write_spread(results, out, f"BC: {checkpoint}")
     typer.echo((out / "summary.md").read_text())
 
 

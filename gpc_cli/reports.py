@@ -17,7 +17,7 @@ from tasks import get_task
 _console = Console()
 
 
-def parse_seeds(text: str) -> list[int]:
+def parse_seeds(text: str, option: str = "--seeds") -> list[int]:
     """``START:STOP`` (stop excluded) or a comma-separated list."""
     try:
         if ":" in text:
@@ -26,9 +26,9 @@ def parse_seeds(text: str) -> list[int]:
         else:
             seeds = [int(v) for v in text.split(",")]
     except ValueError:
-        raise ValueError(f"--seeds {text!r}: use START:STOP or a comma-separated list of integers") from None
+        raise ValueError(f"{option} {text!r}: use START:STOP or a comma-separated list of integers") from None
     if not seeds or min(seeds) < 0:
-        raise ValueError(f"--seeds {text!r}: needs at least one non-negative seed")
+        raise ValueError(f"{option} {text!r}: needs at least one non-negative seed")
     return seeds
 
 

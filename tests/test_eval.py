@@ -89,6 +89,12 @@ def test_episode_streams_are_independent_of_batch_layout():
 def test_eval_cli_writes_summary_and_video(checkpoint, tmp_path):
     res = CliRunner().invoke(app, ["eval", checkpoint, "--seeds", "100000:100002", "--max-steps", "16",
                                    "--out", str(tmp_path), "--videos", "1", "--steps", "2"])
+    spread = CliRunner().invoke(app, ["eval", checkpoint, "--seeds", "100000:100002", "--max-steps", "8",
+                                      "--out", str(tmp_path / "spread"), "--sampling-seeds", "0,1"])
+    assert spread.exit_code == 0, spread.output
+    agg = json.loads((tmp_path / "spread" / "summary.json").read_text())
+    assert agg["sampling_seeds"] == [0, 1] and len(agg["mean_scores"]) == 2
+    assert (tmp_path / "spread" / "sampling-seed-1" / "episodes.json").exists()
     assert res.exit_code == 0, res.output
     episodes = json.loads((tmp_path / "episodes.json").read_text())
     assert [e["seed"] for e in episodes] == [100000, 100001] and all(e["steps"] == 16 for e in episodes)
