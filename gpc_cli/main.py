@@ -9,7 +9,9 @@ from typing import Optional
 import typer
 
 from gpc_cli.errors import OneLineErrors, check_import_layout
+from gpc_cli.groups import DefaultToRun
 from gpc_cli.train import train_app
+from gpc_cli.world_model import evaluate as eval_world_model, train as train_world_model
 
 app = typer.Typer(
     help="Generative Predictive Control: improve a frozen diffusion policy with a learned world model.",
@@ -18,6 +20,13 @@ app = typer.Typer(
 data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
 app.add_typer(data_app, name="data")
 app.add_typer(train_app, name="train")
+eval_app = typer.Typer(
+    cls=DefaultToRun, no_args_is_help=True,
+    help="Evaluate: `gpc eval CKPT` runs the policy in closed loop; `gpc eval world-model CKPT` scores predictions.",
+)
+app.add_typer(eval_app, name="eval")
+train_app.command("world-model")(train_world_model)
+eval_app.command("world-model")(eval_world_model)
 
 
 @app.command()
@@ -114,7 +123,7 @@ def eval_expert(
     typer.echo(report)
 
 
-@app.command("eval")
+@eval_app.command("run")
 def eval_policy(
     checkpoint: Path = typer.Argument(..., help="Policy checkpoint (its config and normalizer are inside)."),
     seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),

@@ -46,3 +46,24 @@ class Controller(Protocol):
     def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
         """``{key: (B, n_obs_steps, ...)}`` -> a Plan; ``generators[b]`` is history b's own random stream."""
         ...
+
+
+@runtime_checkable
+class WorldModel(Protocol):
+    """Rolls out K action chunks from one (or K) observation histories in one batched, differentiable call."""
+
+    n_obs_steps: int  # history length H the model reads
+
+    def rollout(self, history: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """``(K, H, D)`` or ``(H, D)`` raw states, ``(K, T, A)`` raw actions -> ``(K, T, D)`` predicted raw
+        states ``s_{t+1} .. s_{t+T}`` (state ``t + i + 1`` follows action ``i``)."""
+        ...
+
+
+@runtime_checkable
+class Reward(Protocol):
+    """Scores a batch of predicted futures; higher is better, differentiable for GPC-OPT."""
+
+    def __call__(self, futures: torch.Tensor) -> torch.Tensor:
+        """``(K, T, ...)`` predicted futures (states or frames) -> ``(K,)`` scores."""
+        ...

@@ -1,4 +1,7 @@
-"""One policy training run: Zarr stores -> DataModule -> PolicyModule -> checkpoints in a run directory.
+"""One training run: Zarr stores -> DataModule -> LightningModule -> checkpoints in a run directory.
+
+``train_policy`` trains the policy; ``fit_module`` is the loop any of our LightningModules
+runs in (the world model's ``train_world_model`` uses it too).
 
 Run directory layout::
 
@@ -95,7 +98,7 @@ class TrainResult:
     best: Path | None
     global_step: int
     best_val_loss: float | None
-    module: PolicyModule  # the trained module as training left it (weights equal last.ckpt's)
+    module: L.LightningModule  # the trained module as training left it (weights equal last.ckpt's)
     rank: int = 0  # this process's global rank (DDP runs return in every process)
 
 
@@ -165,18 +168,25 @@ def _write_run_record(run_dir: Path, policy: PolicyConfig, datasets: Sequence[st
     (run_dir / "run.json").write_text(json.dumps(record, indent=2))
 
 
+def check_run_dir(run: RunConfig) -> Path:
+    """``RUN_DIR/checkpoints/last.ckpt``, after refusing to resume nothing or to overwrite a run."""
+    last = Path(run.run_dir) / "checkpoints" / LAST
+    if run.resume:
+        if not last.is_file():
+            raise DataError(f"{run.run_dir}: nothing to resume (no checkpoints/{LAST}); drop --resume to start a run")
+    elif last.exists():
+        raise DataError(f"{run.run_dir}: already holds a training run; pass --resume to continue it or pick another --out")
+    return last
+
+
 def train_policy(policy: PolicyConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> TrainResult:
     """Train (or resume) a policy on the given stores; returns where the checkpoints are."""
     run_dir = Path(run.run_dir)
     ckpt_dir = run_dir / "checkpoints"
-    last = ckpt_dir / LAST
+    last = check_run_dir(run)
     start_step = 0
     if run.resume:
-        if not last.is_file():
-            raise DataError(f"{run_dir}: nothing to resume (no checkpoints/{LAST}); drop --resume to start a run")
         policy, start_step = _resumed_config(last, policy)
-    elif last.exists():
-        raise DataError(f"{run_dir}: already holds a training run; pass --resume to continue it or pick another --out")
 
     data = EpisodeDataModule(data_config(policy, datasets, run))
     shapes = {k: tuple(data.arrays.data[k].shape[1:]) for k in policy.obs_keys}
@@ -191,9 +201,22 @@ def train_policy(policy: PolicyConfig, datasets: Sequence[str | os.PathLike], ru
 
     L.seed_everything(run.seed + start_step, workers=True, verbose=False)
     module = PolicyModule(policy, normalizer=data.normalizer)
+    return fit_module(module, data, run, validate=len(data.val_episodes) > 0)
+
+
+def fit_module(module: L.LightningModule, data: L.LightningDataModule, run: RunConfig, validate: bool) -> TrainResult:
+    """Run Lightning on any of our modules: last/best checkpoints, TensorBoard, resume, NaN stop.
+
+    The module logs ``val/loss`` (when ``validate``) and sets ``diverged_at`` (a step, or
+    ``None``) when its loss turns non-finite; ``last.ckpt`` is resumed when ``run.resume``.
+    """
+    run_dir = Path(run.run_dir)
+    ckpt_dir = run_dir / "checkpoints"
+    last = ckpt_dir / LAST
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
     callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every), LearningRateMonitor("step")]
     best_cb = None
-    if len(data.val_episodes):
+    if validate:
         best_cb = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST[:-5], monitor="val/loss", mode="min", save_top_k=1,
                                   auto_insert_metric_name=False, enable_version_counter=False,
                                   save_on_train_epoch_end=False)
@@ -214,9 +237,10 @@ def train_policy(policy: PolicyConfig, datasets: Sequence[str | os.PathLike], ru
         warnings.filterwarnings("ignore", message=r".*module\(s\) in eval mode.*")
         warnings.filterwarnings("ignore", message=r".*smaller than the logging interval.*")
         trainer.fit(module, datamodule=data, ckpt_path=last if run.resume else None, weights_only=True)
-    if module.diverged_at is not None:
+    diverged_at = getattr(module, "diverged_at", None)
+    if diverged_at is not None:
         raise TrainingDiverged(
-            f"loss became non-finite at step {module.diverged_at}; training stopped and {last} holds the last "
+            f"loss became non-finite at step {diverged_at}; training stopped and {last} holds the last "
             "good weights (check the data, lower the learning rate or use 32-bit precision, then --resume)"
         )
     best = Path(best_cb.best_model_path) if best_cb is not None and best_cb.best_model_path else None

@@ -1,0 +1,93 @@
+"""Rewards that score predicted futures; the state Push-T one is the negative registration loss.
+
+The registration loss of a pose is the mean distance between an object's vertices placed
+at that pose and at the goal pose (a pose ``(x, y, theta)`` maps an object point ``p`` to
+``(x, y) + R(theta) p``). The caller supplies the vertices, the goal and where the pose
+sits in the state vector, so this module knows no task. Higher reward is better: the
+reward is ``-registration`` (0 at the goal, negative elsewhere), differentiable and batched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from models.protocols import Reward  # noqa: F401  (re-exported: the interface this module implements)
+
+AGGREGATES = ("final", "discounted")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """How per-step rewards of a predicted future become one score."""
+
+    aggregate: str = "final"  # final: the last predicted step's reward; discounted: sum_t discount**t r_t
+    discount: float = 0.99  # per-step factor of the discounted sum (t = 0 is the first predicted step)
+    pose_dims: tuple[int, int, int] = (2, 3, 4)  # state entries of the object's x, y, theta (Push-T: the block)
+
+    def __post_init__(self) -> None:
+        if self.aggregate not in AGGREGATES:
+            raise ValueError(f"reward aggregate {self.aggregate!r}: use one of {', '.join(AGGREGATES)}")
+        if not 0.0 < self.discount <= 1.0:
+            raise ValueError(f"discount {self.discount}: must lie in (0, 1]")
+        if len(self.pose_dims) != 3 or len(set(self.pose_dims)) != 3 or min(self.pose_dims) < 0:
+            raise ValueError(f"pose_dims {self.pose_dims}: need three distinct state indices (x, y, theta)")
+
+
+def place(points: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
+    """Object-frame points ``(V, 2)`` at poses ``(..., 3)`` -> world points ``(..., V, 2)``."""
+    cos, sin = torch.cos(poses[..., 2:3]), torch.sin(poses[..., 2:3])  # (..., 1)
+    x, y = points[:, 0], points[:, 1]  # (V,)
+    wx = poses[..., 0:1] + cos * x - sin * y
+    wy = poses[..., 1:2] + sin * x + cos * y
+    return torch.stack([wx, wy], dim=-1)
+
+
+def registration_distance(poses: torch.Tensor, goals: torch.Tensor, vertices: torch.Tensor,
+                          eps: float = 1e-6) -> torch.Tensor:
+    """Mean vertex distance between poses ``(..., 3)`` and goals (broadcastable) -> ``(...)``.
+
+    ``sqrt(d^2 + eps^2) - eps`` keeps the gradient finite (zero) where a vertex sits exactly
+    on its goal, and is 0 there.
+    """
+    d2 = (place(vertices, poses) - place(vertices, goals)).pow(2).sum(dim=-1)
+    return (torch.sqrt(d2 + eps * eps) - eps).mean(dim=-1)
+
+
+class RegistrationReward(nn.Module):
+    """``-registration`` of the predicted object pose against the goal, aggregated over the predicted steps.
+
+    ``vertices``: ``(V, 2)`` object-frame points (Push-T: the T's 8 box corners); ``goal``:
+    ``(3,)`` pose. A call may pass its own goals ``(3,)`` or ``(K, 3)`` (a goal per candidate,
+    for tasks whose goal varies per episode).
+    """
+
+    def __init__(self, vertices: torch.Tensor, goal: torch.Tensor, config: RewardConfig = RewardConfig()) -> None:
+        super().__init__()
+        vertices = torch.as_tensor(vertices, dtype=torch.float32).reshape(-1, 2)
+        goal = torch.as_tensor(goal, dtype=torch.float32)
+        if goal.shape != (3,):
+            raise ValueError(f"goal pose: expected (3,) = (x, y, theta), got {tuple(goal.shape)}")
+        self.config = config
+        self.register_buffer("vertices", vertices)
+        self.register_buffer("goal", goal)
+
+    def per_step(self, states: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        """``(K, T, D)`` predicted states -> ``(K, T)`` rewards (0 at the goal, negative elsewhere)."""
+        if states.dim() != 3 or states.shape[-1] <= max(self.config.pose_dims):
+            raise ValueError(f"states: expected (K, T, D > {max(self.config.pose_dims)}), got {tuple(states.shape)}")
+        poses = states[..., list(self.config.pose_dims)]
+        goal = self.goal if goal is None else torch.as_tensor(goal, dtype=states.dtype, device=states.device)
+        if goal.dim() == 2:  # (K, 3): one goal per candidate, the same for all its steps
+            goal = goal[:, None]
+        return -registration_distance(poses, goal.to(states.dtype), self.vertices.to(states.dtype))
+
+    def forward(self, states: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        """``(K, T, D)`` predicted states -> ``(K,)`` scores, higher is better."""
+        rewards = self.per_step(states, goal)
+        if self.config.aggregate == "final":
+            return rewards[:, -1]
+        weights = self.config.discount ** torch.arange(rewards.shape[1], dtype=rewards.dtype, device=rewards.device)
+        return (rewards * weights).sum(dim=1)

@@ -1,0 +1,257 @@
+"""The state world model: an MLP single-step predictor, its batched differentiable rollout, and its LightningModule.
+
+``StateDynamics`` (normaliser + MLP) is the part a planner needs: ``rollout`` maps raw state
+histories and raw action chunks to raw predicted states, in one batched call that
+gradients flow through. ``WorldModelModule`` wraps it for training (batch in, loss and
+logs out) and checkpoints (``kind="world_model"``, task, obs, phase);
+``WorldModelModule.load_from_checkpoint(path)`` alone rebuilds it, normaliser included.
+
+Inputs and outputs of the predictor (``D`` state entries, ``A`` action entries):
+
+- each history state enters as its normalised linear entries plus ``cos``, ``sin`` of its
+  angles (no 2 pi discontinuity), with the ``H - 1`` consecutive differences (angles
+  wrapped to [-pi, pi)) z-scored by the one-step delta statistics;
+- the action enters normalised, and relative to the state entries it targets (Push-T: the
+  agent position the PD controller drives towards);
+- the network predicts the z-scored delta to the next state; the angle delta is a wrapped
+  delta, so ``s_{t+1} = s_t + delta`` and angles are reported modulo 2 pi.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, Mapping
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from datasets.normalizer import MinMaxNormalizer
+from models.checkpoint import checkpoint_meta, read_checkpoint
+from models.mlp import MLP
+from models.policy import cosine_with_warmup
+from models.protocols import WorldModel  # noqa: F401  (re-exported: the interface this module implements)
+from models.world_model_config import KIND, DynamicsConfig, WorldModelConfig
+
+STATE_KEY, ACTION_KEY, DELTA_KEY = "state", "action", "state_delta"
+TWO_PI = 2.0 * math.pi
+
+
+def wrap_angle(x: torch.Tensor) -> torch.Tensor:
+    """Angles to [-pi, pi) (gradient 1 almost everywhere)."""
+    return torch.remainder(x + math.pi, TWO_PI) - math.pi
+
+
+def delta_statistics(states: np.ndarray, episode_ends: np.ndarray, episodes: np.ndarray,
+                     angle_dims: tuple[int, ...], floor: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """``(mean - std, mean + std)`` of one-step state differences inside the given episodes.
+
+    Angle differences are wrapped to [-pi, pi). ``MinMaxNormalizer.add(DELTA_KEY, lo, hi)``
+    with these bounds z-scores a delta. ``std`` is floored at ``floor`` (px, rad) so a
+    feature that never moves cannot blow up.
+    """
+    parts = []
+    for i in episodes:
+        start = int(episode_ends[i - 1]) if i else 0
+        ep = np.asarray(states[start : int(episode_ends[i])], dtype=np.float64)
+        if len(ep) > 1:
+            parts.append(np.diff(ep, axis=0))
+    if not parts:
+        raise ValueError("no episode has two steps: cannot fit the world model's delta statistics")
+    d = np.concatenate(parts)
+    d[:, list(angle_dims)] = np.remainder(d[:, list(angle_dims)] + np.pi, 2 * np.pi) - np.pi
+    mean, std = d.mean(axis=0), np.maximum(d.std(axis=0), floor)
+    return mean - std, mean + std
+
+
+class StateDynamics(nn.Module):
+    """Normaliser + MLP: the single-step predictor and its recursive rollout, in raw state units.
+
+    The normaliser holds ``state`` and ``action`` (min-max) and ``state_delta`` (z-score)
+    statistics of the training data.
+    """
+
+    def __init__(self, config: DynamicsConfig, normalizer: MinMaxNormalizer | None = None) -> None:
+        super().__init__()
+        self.config = config
+        self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
+        self.net = MLP(config.in_dim, config.state_dim, config.width, config.depth, config.activation, config.layer_norm)
+        mask = torch.zeros(config.state_dim, dtype=torch.bool)
+        mask[list(config.angle_dims)] = True
+        self.register_buffer("angle_mask", mask, persistent=False)
+        self._linear = list(config.linear_dims)
+        self._angles = list(config.angle_dims)
+        self._targets = list(config.action_target_dims)
+
+    def check_normalizer(self) -> None:
+        missing = [k for k in (STATE_KEY, ACTION_KEY, DELTA_KEY) if k not in self.normalizer.keys()]
+        if missing:
+            raise ValueError(f"the world model's normaliser has no statistics for {', '.join(missing)}")
+
+    # ------------------------------------------------------------------ one step
+    def difference(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """``a - b`` with angle entries wrapped to [-pi, pi)."""
+        d = a - b
+        return torch.where(self.angle_mask, wrap_angle(d), d)
+
+    def _features(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
+        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, in_dim)``."""
+        k = history.shape[0]
+        parts = [self.normalizer.normalize(STATE_KEY, history)[..., self._linear].reshape(k, -1)]
+        if self._angles:
+            angles = history[..., self._angles]
+            parts += [torch.cos(angles).reshape(k, -1), torch.sin(angles).reshape(k, -1)]
+        if history.shape[1] > 1:
+            steps = self.difference(history[:, 1:], history[:, :-1])
+            parts.append((steps * self.normalizer.scales[DELTA_KEY]).reshape(k, -1))
+        parts.append(action_n)
+        if self._targets:
+            parts.append(action_n - self.normalizer.normalize(ACTION_KEY, history[:, -1, self._targets]))
+        return torch.cat(parts, dim=-1)
+
+    def step(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
+        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, D)`` raw next state (angles unwrapped)."""
+        z = self.net(self._features(history, action_n))
+        return history[:, -1] + self.normalizer.unnormalize(DELTA_KEY, z)
+
+    # ------------------------------------------------------------------ rollout
+    def unroll(self, history: torch.Tensor, actions: torch.Tensor, detach_feedback: bool = False) -> torch.Tensor:
+        """``(K, H, D)``, ``(K, T, A)`` raw -> ``(K, T, D)`` raw predictions (angles unwrapped)."""
+        window = history
+        actions_n = self.normalizer.normalize(ACTION_KEY, actions)
+        out = []
+        for t in range(actions.shape[1]):
+            nxt = self.step(window, actions_n[:, t])
+            out.append(nxt)
+            fed = nxt.detach() if detach_feedback else nxt
+            window = torch.cat([window[:, 1:], fed[:, None]], dim=1)
+        return torch.stack(out, dim=1)
+
+    def rollout(self, history: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """``(K, H', D)`` or ``(H', D)`` raw states (the last H are read; one history is broadcast to
+        all K), ``(K, T, A)`` raw actions -> ``(K, T, D)`` raw predicted states, angles in [0, 2 pi)."""
+        c = self.config
+        if actions.dim() != 3 or actions.shape[-1] != c.action_dim:
+            raise ValueError(f"actions: expected (K, T, {c.action_dim}), got {tuple(actions.shape)}")
+        if history.dim() == 2:
+            history = history.unsqueeze(0).expand(actions.shape[0], -1, -1)
+        if history.dim() != 3 or history.shape[-1] != c.state_dim or history.shape[1] < c.history:
+            raise ValueError(f"history: expected (K, H >= {c.history}, {c.state_dim}) or (H, {c.state_dim}), "
+                             f"got {tuple(history.shape)}")
+        if history.shape[0] != actions.shape[0]:
+            raise ValueError(f"history batch {history.shape[0]} differs from actions batch {actions.shape[0]}")
+        states = self.unroll(history[:, -c.history :], actions)
+        return torch.where(self.angle_mask, torch.remainder(states, TWO_PI), states)
+
+    # ------------------------------------------------------------------ loss
+    def loss(self, states: torch.Tensor, actions: torch.Tensor, unroll: int, units: str = "delta",
+             detach_feedback: bool = False) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Windows ``(B, H + T, D)`` raw states, ``(B, T, A)`` raw actions -> mean squared error.
+
+        The T steps are cut into segments of ``unroll`` predictions, each started from the
+        true history before it: ``unroll = 1`` is the one-step (teacher-forced) loss,
+        ``unroll = T`` the fully unrolled one. Every predicted state is supervised. Errors
+        (angles wrapped) are measured in ``units``: ``delta`` divides each entry by its
+        one-step delta's standard deviation, ``state`` by half its range in the data.
+        """
+        h, (b, t) = self.config.history, actions.shape[:2]
+        if states.shape[1] != h + t:
+            raise ValueError(f"windows hold {states.shape[1]} states for {t} actions; expected H + T = {h + t}")
+        starts = range(0, t, unroll)
+        history = torch.stack([states[:, j : j + h] for j in starts], dim=1).flatten(0, 1)
+        target = torch.stack([states[:, h + j : h + j + unroll] for j in starts], dim=1).flatten(0, 1)
+        segments = actions.reshape(b * len(starts), unroll, -1)
+        pred = self.unroll(history, segments, detach_feedback)
+        err = self.difference(pred, target) * self.normalizer.scales[DELTA_KEY if units == "delta" else STATE_KEY]
+        per_step = err.pow(2).mean(dim=(0, 2))
+        loss = per_step.mean()
+        return loss, {"loss": loss.detach(), "loss_last_step": per_step[-1].detach()}
+
+
+class WorldModelModule(L.LightningModule):
+    """The state world model for one task: batch in, loss and logs out; ``rollout`` for planners."""
+
+    def __init__(self, config: WorldModelConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
+                 data: Mapping[str, Any] | None = None) -> None:
+        super().__init__()
+        self.config = WorldModelConfig.from_dict(config)
+        # ``data``: where the weights came from (stores, split seed and ratio, init checkpoint), for evaluation.
+        self.save_hyperparameters({"config": self.config.to_dict(), "data": dict(data or {})})
+        self.dynamics = StateDynamics(self.config.dynamics, normalizer)
+        self.diverged_at: int | None = None  # global step of a non-finite loss; training stops there
+
+    @property
+    def n_obs_steps(self) -> int:
+        return self.config.dynamics.history
+
+    @property
+    def data_record(self) -> dict[str, Any]:
+        return dict(self.hparams.get("data", {}))
+
+    def rollout(self, history: torch.Tensor | np.ndarray, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """See ``WorldModel.rollout``; arrays are moved to the module's device as float32."""
+        history = torch.as_tensor(history, dtype=torch.float32, device=self.device)
+        actions = torch.as_tensor(actions, dtype=torch.float32, device=self.device)
+        return self.dynamics.rollout(history, actions)
+
+    # ------------------------------------------------------------------ checkpoints
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["gpc"] = checkpoint_meta(KIND, self.config.task, obs=self.config.obs_type, phase=self.config.phase)
+
+    @classmethod
+    def load_from_checkpoint(  # type: ignore[override]
+        cls, checkpoint_path: str | os.PathLike, map_location: Any = "cpu", task: str | None = None,
+        obs_type: str | None = None, **_: Any,
+    ) -> "WorldModelModule":
+        """Rebuild the world model (config, normaliser, weights) from a checkpoint, in eval mode.
+
+        ``task`` / ``obs_type``, when given, must match the checkpoint's record (DataError otherwise).
+        """
+        ckpt = read_checkpoint(checkpoint_path, KIND, task=task, map_location=map_location, obs=obs_type)
+        try:
+            hp = ckpt["hyper_parameters"]
+            module = cls(hp["config"], data=hp.get("data"))
+            module.load_state_dict(ckpt["state_dict"])
+        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ValueError(f"{checkpoint_path}: world model checkpoint does not match this gpc's ({first[:200]})") from None
+        return module.eval()
+
+    # ------------------------------------------------------------------ training
+    def _loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        h, t = self.config.dynamics.history, self.config.horizon
+        states = batch[STATE_KEY].float()
+        actions = batch[ACTION_KEY].float()[:, h - 1 : h - 1 + t]
+        c = self.config
+        return self.dynamics.loss(states, actions, c.unroll_steps, c.loss_scale, c.detach_feedback)
+
+    def on_fit_start(self) -> None:
+        self.dynamics.check_normalizer()
+
+    def training_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor | None:
+        loss, logs = self._loss(batch)
+        bad = not bool(torch.isfinite(loss))
+        if self.trainer.strategy.reduce_boolean_decision(bad, all=False):
+            self.diverged_at = self.global_step  # skip this update and stop; the caller reports it
+            self.trainer.should_stop = True
+            return None
+        self.log_dict({f"train/{k}": v for k, v in logs.items()}, prog_bar=True, batch_size=batch[STATE_KEY].shape[0])
+        return loss
+
+    def validation_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss, logs = self._loss(batch)
+        n = batch[STATE_KEY].shape[0]
+        self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=n)
+        self.log("val/loss_last_step", logs["loss_last_step"], sync_dist=True, batch_size=n)
+        return loss
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        o = self.config.optim
+        params = [p for p in self.dynamics.parameters() if p.requires_grad]
+        optimizer = torch.optim.AdamW(params, lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
+        total = self.trainer.estimated_stepping_batches
+        total = int(total) if math.isfinite(total) else 10**12
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine_with_warmup(o.warmup_steps, total))
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}

@@ -1,0 +1,118 @@
+"""How far a state world model's rollouts drift from recorded futures, per horizon step.
+
+Each held-out window gives a history of H recorded states and the next T recorded actions;
+the model rolls them out open-loop and every predicted state is compared with the recorded
+one. Beside it stands the trivial "nothing moves" baseline that copies the last history
+state forward. Errors: object position (px), object angle (deg, wrapped), agent position
+(px) and, when the caller passes the object's vertices, the registration distance (px: mean
+vertex distance between predicted and recorded pose, what the planner's reward reads).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from datasets.errors import DataError
+from datasets.sequence import WindowSpec, split_episodes, window_indices, window_starts
+from datasets.windows import load_stores
+from models.reward import registration_distance
+from models.world_model import ACTION_KEY, STATE_KEY, WorldModelModule, wrap_angle
+
+SPLITS = ("val", "all")
+METRICS = {"object_px": "object px", "object_deg": "object deg", "agent_px": "agent px", "registration_px": "vertices px"}
+
+
+@dataclass(frozen=True)
+class PoseLayout:
+    """Where the object's pose and the agent's position sit in the state vector (Push-T's by default)."""
+
+    object_xy: tuple[int, int] = (2, 3)
+    object_angle: int = 4
+    agent_xy: tuple[int, int] | None = (0, 1)
+
+
+def _errors(pred: torch.Tensor, true: torch.Tensor, layout: PoseLayout, vertices: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors."""
+    ox, a = list(layout.object_xy), layout.object_angle
+    out = {"object_px": (pred[..., ox] - true[..., ox]).norm(dim=-1),
+           "object_deg": wrap_angle(pred[..., a] - true[..., a]).abs() * (180.0 / math.pi)}
+    if layout.agent_xy is not None:
+        ag = list(layout.agent_xy)
+        out["agent_px"] = (pred[..., ag] - true[..., ag]).norm(dim=-1)
+    if vertices is not None:
+        pose = [*ox, a]
+        out["registration_px"] = registration_distance(pred[..., pose], true[..., pose], vertices)
+    return out
+
+
+@torch.no_grad()
+def evaluate_rollouts(
+    module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
+    horizon: int | None = None, layout: PoseLayout = PoseLayout(), vertices: torch.Tensor | np.ndarray | None = None,
+    batch_size: int = 4096,
+) -> dict[str, Any]:
+    """Per-step mean errors of the model and of the "nothing moves" baseline on held-out windows.
+
+    ``split="val"``: the validation episodes of the split the model was trained with (its
+    recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
+    store the model never saw). ``episodes``: only the first N of them.
+    """
+    if split not in SPLITS:
+        raise ValueError(f"split {split!r}: use one of {', '.join(SPLITS)}")
+    h, t = module.n_obs_steps, horizon or module.config.horizon
+    arrays = load_stores([str(p) for p in datasets], (STATE_KEY, ACTION_KEY))
+    if split == "val":
+        record = module.data_record
+        if "val_ratio" not in record:
+            raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
+        _, chosen = split_episodes(arrays.n_episodes, float(record["val_ratio"]), int(record["seed"]))
+        if len(chosen) == 0:
+            raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
+    else:
+        chosen = np.arange(arrays.n_episodes)
+    if episodes is not None:
+        chosen = chosen[:episodes]
+    spec = WindowSpec(h + t, h - 1, 0)
+    rows = window_starts(arrays.episode_ends, chosen, spec)
+    idx = np.stack([window_indices(r, h + t) for r in rows])
+    states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
+    actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
+    verts = None if vertices is None else torch.as_tensor(vertices, dtype=torch.float32).reshape(-1, 2)
+    sums: dict[str, dict[str, torch.Tensor]] = {"model": {}, "baseline": {}}
+    for lo in range(0, len(idx), batch_size):
+        hist, acts, true = states[lo : lo + batch_size, :h], actions[lo : lo + batch_size], states[lo : lo + batch_size, h:]
+        pred = module.rollout(hist, acts).cpu()
+        still = hist[:, -1:].expand_as(true)
+        for name, guess in (("model", pred), ("baseline", still)):
+            for metric, err in _errors(guess, true, layout, verts).items():
+                sums[name][metric] = sums[name].get(metric, 0.0) + err.double().sum(dim=0)
+    n = len(idx)
+    means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}
+    steps = [{"step": i + 1, **{name: {m: means[name][m][i] for m in means[name]} for name in means}} for i in range(t)]
+    return {
+        "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(n),
+        "history": h, "horizon": t, "config": module.config.to_dict(), "steps": steps,
+        "mean_over_steps": {name: {m: float(np.mean(v)) for m, v in means[name].items()} for name in means},
+    }
+
+
+def markdown_table(report: dict[str, Any], title: str = "World model rollouts") -> str:
+    """One row per horizon step: each metric as ``model / baseline`` (baseline: nothing moves)."""
+    metrics = [m for m in METRICS if m in report["steps"][0]["model"]]
+    lines = [
+        f"## {title}", "",
+        f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; history {report['history']}, "
+        f"horizon {report['horizon']}. Each cell: model / nothing-moves baseline (mean error).", "",
+        "| step | " + " | ".join(METRICS[m] for m in metrics) + " |",
+        "|---|" + "---|" * len(metrics),
+    ]
+    for row in report["steps"] + [{"step": "mean", **report["mean_over_steps"]}]:
+        cells = [f"{row['model'][m]:.2f} / {row['baseline'][m]:.2f}" for m in metrics]
+        lines.append(f"| {row['step']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

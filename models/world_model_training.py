@@ -1,0 +1,116 @@
+"""One world-model training run (phase 1 or 2) through the shared loop of ``models.training``.
+
+Same run directory layout, resume and NaN handling as the policy's. Phase 2 starts from a
+phase-1 checkpoint (``init``): its network config, normaliser and weights are taken as they
+are, with a fresh optimiser and phase 2's own schedule. ``find_phase_one`` finds that
+checkpoint beside a phase-2 run directory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import lightning as L
+from lightning.pytorch.utilities import rank_zero_only
+
+from datasets.datamodule import DataConfig, EpisodeDataModule
+from datasets.errors import DataError
+from datasets.normalizer import MinMaxNormalizer
+from models.checkpoint import read_checkpoint
+from models.training import LAST, RunConfig, TrainResult, check_run_dir, fit_module
+from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule, delta_statistics
+from models.world_model_config import KIND, WorldModelConfig, with_network_of
+
+_PHASE_TAGS = (("phase2", "phase1"), ("phase-2", "phase-1"), ("phase_2", "phase_1"))
+
+
+def world_model_data_config(config: WorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> DataConfig:
+    """Windows of H + T states and actions; histories padded at episode starts, futures never padded."""
+    h = config.dynamics.history
+    return DataConfig(
+        paths=tuple(str(p) for p in datasets), obs_keys=(STATE_KEY,), action_key=ACTION_KEY, horizon=config.window,
+        n_obs_steps=h, n_action_steps=1, obs_steps_override=config.window, val_ratio=run.val_ratio, seed=run.seed,
+        batch_size=run.batch_size, num_workers=run.num_workers,
+    )
+
+
+def find_phase_one(out: str | os.PathLike) -> Path:
+    """``last.ckpt`` of the phase-1 run beside the phase-2 run directory ``out``.
+
+    ``runs/wm-phase2`` looks in ``runs/wm-phase1`` (also ``phase-2``/``phase_2``); any other
+    name ``NAME`` looks in ``NAME-phase1``.
+    """
+    out = Path(out)
+    names = [out.name.replace(a, b) for a, b in _PHASE_TAGS if a in out.name] + [f"{out.name}-phase1"]
+    candidates = [out.with_name(n) / "checkpoints" / LAST for n in dict.fromkeys(names)]
+    for path in candidates:
+        if path.is_file():
+            return path
+    raise DataError(
+        f"phase 2 starts from phase-1 weights and found none (looked for {', '.join(map(str, candidates))}); "
+        "pass --init PHASE1_RUN/checkpoints/last.ckpt"
+    )
+
+
+def _stored_config(ckpt: dict[str, Any], path: Path) -> WorldModelConfig:
+    try:
+        return WorldModelConfig.from_dict(ckpt["hyper_parameters"]["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{path}: world model checkpoint with an unreadable config ({exc})") from None
+
+
+@rank_zero_only
+def _write_run_record(run_dir: Path, config: WorldModelConfig, record: dict[str, Any], run: RunConfig) -> None:
+    out = {"kind": KIND, "world_model": config.to_dict(), **record,
+           "run": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(run).items()}}
+    (run_dir / "run.json").write_text(json.dumps(out, indent=2))
+
+
+def train_world_model(config: WorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig,
+                      init: str | os.PathLike | None = None) -> TrainResult:
+    """Train (or resume) a state world model; phase 2 needs ``init`` (a phase-1 checkpoint) unless resuming."""
+    run_dir = Path(run.run_dir)
+    last = check_run_dir(run)
+    start_step, init_state = 0, None
+    if run.resume:
+        ckpt = read_checkpoint(last, KIND, task=config.task, obs=config.obs_type)
+        stored = _stored_config(ckpt, last)
+        if stored.phase != config.phase:
+            raise DataError(f"{last}: the run in {run_dir} is phase {stored.phase}, not phase {config.phase}")
+        config, start_step = stored, int(ckpt.get("global_step", 0))
+        init = ckpt["hyper_parameters"].get("data", {}).get("init")
+    elif init is not None:
+        ckpt = read_checkpoint(init, KIND, task=config.task, obs=config.obs_type)
+        config = with_network_of(config, _stored_config(ckpt, Path(init)))
+        init_state = {k[len("dynamics."):]: v for k, v in ckpt["state_dict"].items() if k.startswith("dynamics.")}
+    elif config.phase == 2:
+        raise DataError("phase 2 starts from phase-1 weights: pass init (--init PHASE1_RUN/checkpoints/last.ckpt)")
+
+    data = EpisodeDataModule(world_model_data_config(config, datasets, run))
+    for key, want in ((STATE_KEY, config.dynamics.state_dim), (ACTION_KEY, config.dynamics.action_dim)):
+        shape = tuple(data.arrays.data[key].shape[1:])
+        if shape != (want,):
+            raise DataError(f"{datasets[0]}: data/{key} rows are {shape}, the world model needs ({want},)")
+    record = {"datasets": [str(p) for p in datasets], "val_ratio": run.val_ratio, "seed": run.seed,
+              "init": None if init is None else str(init)}
+    (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
+    _write_run_record(run_dir, config, record, run)
+
+    L.seed_everything(run.seed + start_step, workers=True, verbose=False)
+    if init_state is None:
+        normalizer = data.normalizer
+        lo, hi = delta_statistics(data.arrays.data[STATE_KEY], data.arrays.episode_ends, data.train_episodes,
+                                  config.dynamics.angle_dims)
+        normalizer.add(DELTA_KEY, lo, hi)
+        module = WorldModelModule(config, normalizer=normalizer, data=record)
+    else:
+        module = WorldModelModule(config, normalizer=MinMaxNormalizer(), data=record)
+        try:
+            module.dynamics.load_state_dict(init_state)
+        except RuntimeError as exc:
+            raise DataError(f"{init}: weights do not fit the world model ({str(exc).splitlines()[0][:200]})") from None
+    return fit_module(module, data, run, validate=len(data.val_episodes) > 0)
