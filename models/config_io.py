@@ -44,3 +44,14 @@ def from_plain(cls: type[T], data: dict[str, Any] | T) -> T:
         else:
             kwargs[name] = _tuples(value)
     return cls(**kwargs)
+
+
+class PlainConfig:
+    """Mixin for top-level configs: ``to_dict`` for checkpoints, ``from_dict`` to rebuild (also accepts an instance)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_plain(self)
+
+    @classmethod
+    def from_dict(cls: type[T], data: Any) -> T:
+        return from_plain(cls, dict(data) if isinstance(data, typing.Mapping) else data)

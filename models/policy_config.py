@@ -10,7 +10,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from models.config_io import from_plain, to_plain
+from models.config_io import PlainConfig
 from models.diffusion import NoiseConfig, SamplerConfig
 from models.ema import EMAConfig
 from models.encoders import EncoderConfig
@@ -36,7 +36,7 @@ class OptimConfig:
 
 
 @dataclass(frozen=True)
-class PolicyConfig:
+class PolicyConfig(PlainConfig):
     """Diffusion Policy: a chunk of ``horizon`` actions denoised given ``n_obs_steps`` observations.
 
     Timeline (n_obs_steps 2, horizon 16, n_action_steps 8), index 0 = oldest observation::
@@ -87,13 +87,6 @@ class PolicyConfig:
             raise ValueError(f"obs type {self.obs_type!r} needs data key(s) {', '.join(missing)}")
         pairs = tuple((k, tuple(int(s) for s in shapes[k])) for k in self.obs_keys)
         return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, obs_shapes=pairs))
-
-    def to_dict(self) -> dict[str, Any]:
-        return to_plain(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | "PolicyConfig") -> "PolicyConfig":
-        return from_plain(cls, dict(data) if isinstance(data, Mapping) else data)
 
 
 @dataclass(frozen=True)

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Mapping
 
-from models.config_io import from_plain, to_plain
+
+from models.config_io import PlainConfig
 from models.mlp import ACTIVATIONS
 from models.policy_config import OptimConfig
 
@@ -81,7 +81,7 @@ class DynamicsConfig:
 
 
 @dataclass(frozen=True)
-class WorldModelConfig:
+class WorldModelConfig(PlainConfig):
     """A state world model: the single-step predictor, its training windows and its phase."""
 
     task: str = "pusht"  # task the model is trained for; checked when a checkpoint is loaded
@@ -131,13 +131,6 @@ class WorldModelConfig:
     def window(self) -> int:
         """States per training window: H history states and T futures."""
         return self.dynamics.history + self.horizon
-
-    def to_dict(self) -> dict[str, Any]:
-        return to_plain(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | "WorldModelConfig") -> "WorldModelConfig":
-        return from_plain(cls, dict(data) if isinstance(data, Mapping) else data)
 
 
 @dataclass(frozen=True)
