@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Mapping
 
 from models.config_io import PlainConfig
 from models.diffusion import NoiseConfig, SamplerConfig

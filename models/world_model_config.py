@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-
 from models.config_io import PlainConfig
 from models.mlp import ACTIVATIONS
 from models.policy_config import OptimConfig
