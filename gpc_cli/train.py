@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import dataclasses
+from typing import Optional
 
 import typer
 
@@ -26,6 +27,7 @@ def policy(
     task: Task = "pusht",
     obs: str = typer.Option("state", "--obs", help="Observations: state, keypoints or image."),
     profile: str = typer.Option("cpu", "--profile", help="cpu (narrow U-Net, DDIM-10), paper (Diffusion Policy's sizes), tiny (tests)."),
+    lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
     max_steps: MaxSteps = None,
     max_epochs: MaxEpochs = None,
     batch_size: BatchSize = None,
@@ -46,12 +48,15 @@ def policy(
     from models.training import train_policy
 
     chosen = policy_profile(profile, obs, task)
+    policy_config = chosen.policy
+    if lr is not None:
+        policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
     run = run_config(
         out, chosen.max_steps, chosen.batch_size, max_steps=max_steps, max_epochs=max_epochs, batch_size=batch_size, task=task, accelerator=accelerator,
         devices=devices, strategy=strategy, num_nodes=num_nodes, precision=precision, seed=seed, resume=resume,
         progress=progress, checkpoint_every=checkpoint_every, val_every=val_every, num_workers=num_workers,
     )
-    echo_result(train_policy(chosen.policy, dataset, run))
+    echo_result(train_policy(policy_config, dataset, run))
 
 
 if __name__ == "__main__":  # `python -m gpc_cli.train policy ...` (DDP re-launches this way)

@@ -220,6 +220,11 @@ def test_cli_trains_and_reports_errors(store, tmp_path):
     bad = cli.invoke(train_app, args[:-1] + ["--task", "chess"])
     assert bad.exit_code != 0 and "unknown task 'chess'" in bad.output
     assert "--obs" in cli.invoke(train_app, ["policy", "--help"]).output
+    lr = cli.invoke(train_app, ["policy", "--dataset", str(store), "--out", str(tmp_path / "lr"), "--profile", "tiny",
+                                "--max-steps", "1", "--batch-size", "8", "--accelerator", "cpu", "--no-progress",
+                                "--lr", "0.0005"])
+    assert lr.exit_code == 0, lr.output
+    assert PolicyModule.load_from_checkpoint(tmp_path / "lr" / "checkpoints" / "last.ckpt").config.optim.lr == 0.0005
 
 
 def test_policy_trains_on_the_human_data(human_data, tmp_path):
