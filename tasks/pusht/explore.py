@@ -187,26 +187,18 @@ class ExplorePolicy:
 
 
 def _run(policy, seeds: Sequence[int], goal: str, max_steps: int, stop_on_success: bool) -> dict:
-    from tasks.pusht.env import PushTEnv
+    from tasks.pusht.record import RecordConfig, record_episode
 
-    env = PushTEnv(obs_type="state", goal=goal)
-    fractions, steps, seconds, cells, contacts = [], [], [], set(), 0
+    record = RecordConfig(max_steps=max_steps, stop_on_success=stop_on_success, images=False, goal=goal)
+    fractions, steps, seconds, cells = [], [], [], set()
     for seed in seeds:
         t0 = time.perf_counter()
-        env.reset(seed=int(seed))
-        policy.reset(int(seed))
-        states, hits = [env.sim.state()], []
-        for _ in range(max_steps):
-            _, _, done, _, info = env.step(policy.act(env.sim, env.goal_pose))
-            states.append(info["state"])
-            hits.append(info["n_contacts"] > 0)
-            if done and stop_on_success:
-                break
+        data, stats = record_episode(policy, int(seed), record)
         seconds.append(time.perf_counter() - t0)
-        fractions.append(float(np.mean(hits)))
-        steps.append(len(hits))
-        contacts += int(np.sum(hits))
-        cells |= geometry.pose_cells(np.array(states))
+        fractions.append(stats.contact_fraction)
+        steps.append(stats.steps)
+        cells |= geometry.pose_cells(data["state"])
+    contacts = float(np.dot(fractions, steps))
     return {"contact_fractions": fractions, "steps": steps, "seconds": seconds,
             "contact_fraction": contacts / max(1, sum(steps)), "pose_coverage": len(cells) / (16 * 16 * 12)}
 
