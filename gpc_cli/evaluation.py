@@ -71,19 +71,19 @@ def episode_generator(sampling_seed: int, env_seed: int) -> torch.Generator:
 def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) -> dict[str, Any]:
     """Run one lockstep group to the end: per-seed results and the group's call timings."""
     task = get_task(config.task)
-    images = "img" in controller.obs_keys
+    images, sim = "img" in controller.obs_keys, task.SIM_KEY in controller.obs_keys
     envs = [task.PushTEnv(obs_type="state", goal=config.goal) for _ in seeds]
     for env, seed in zip(envs, seeds):
         env.reset(seed=seed)
     gens = [episode_generator(config.sampling_seed, s) for s in seeds]
-    hist = [deque([task.observe(env, images)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
+    hist = [deque([task.observe(env, images, sim)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
     rows = [{"seed": int(s), "score": 0.0, "success": False, "steps": 0, "coverage_max": 0.0} for s in seeds]
     done = [False] * len(seeds)
     latencies: list[float] = []
     parts: dict[str, float] = {}
     films = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
     while not all(done):
-        obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in controller.obs_keys}
+        obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in hist[0][0]}
         t0 = time.perf_counter()
         plan = controller.plan(obs, gens)
         latencies.append(time.perf_counter() - t0)
@@ -94,7 +94,10 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                 continue
             for j, action in enumerate(plan.actions[i]):
                 if i in films:
-                    films[i].append(task.draw_plan(env.frame(config.video_size), plan.chunk[i][j:], len(plan.actions[i]) - j))
+                    frame = env.frame(config.video_size)
+                    if plan.futures is not None and j == 0:  # the decision: every candidate's predicted future
+                        films[i].extend([task.draw_futures(frame.copy(), plan.futures[i], plan.scores[i], int(plan.chosen[i]))] * 5)
+                    films[i].append(task.draw_plan(frame, plan.chunk[i][j:], len(plan.actions[i]) - j))
                 _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
                 row = rows[i]
                 row["steps"] += 1
@@ -104,7 +107,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                 if terminated or row["steps"] >= config.max_steps:
                     done[i] = True
                     break
-            hist[i].append(task.observe(env, images))
+            hist[i].append(task.observe(env, images, sim))
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
     for i, film in films.items():
         from gpc_cli.video import write_mp4
@@ -124,7 +127,7 @@ def _init_worker(factory: Callable[[], Controller], threads: int) -> None:
 
 def _work(args: tuple[tuple[int, ...], EvalConfig]) -> dict[str, Any]:
     seeds, config = args
-    with torch.inference_mode():
+    with torch.no_grad():  # not inference_mode: gradient planners re-enable autograd inside
         return run_group(_WORKER["controller"], seeds, config)
 
 

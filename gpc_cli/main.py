@@ -1,4 +1,4 @@
-"""`gpc`: collect data, inspect stores, check the simulator (training and planning follow)."""
+"""`gpc`: collect data, inspect stores, check the simulator, train, evaluate and plan."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from gpc_cli.errors import OneLineErrors, check_import_layout
-from gpc_cli.groups import DefaultToRun
+from gpc_cli.eval_cmd import eval_app, register as register_eval
 from gpc_cli.train import train_app
 from gpc_cli.world_model import evaluate as eval_world_model, train as train_world_model
 
@@ -20,11 +20,7 @@ app = typer.Typer(
 data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
 app.add_typer(data_app, name="data")
 app.add_typer(train_app, name="train")
-eval_app = typer.Typer(
-    cls=DefaultToRun, no_args_is_help=True,
-    help="Evaluate: `gpc eval CKPT` runs the policy in closed loop; `gpc eval world-model CKPT` scores predictions.",
-)
-app.add_typer(eval_app, name="eval")
+register_eval(app)
 train_app.command("world-model")(train_world_model)
 eval_app.command("world-model")(eval_world_model)
 
@@ -121,49 +117,6 @@ def eval_expert(
 
     report = expert_report(parse_seeds(seeds), goal, out)
     typer.echo(report)
-
-
-@eval_app.command("run")
-def eval_policy(
-    checkpoint: Path = typer.Argument(..., help="Policy checkpoint (its config and normalizer are inside)."),
-    seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
-    out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
-    method: Optional[str] = typer.Option(None, "--method", help="ddim or ddpm (default: the checkpoint's)."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Denoising steps (default: the checkpoint's)."),
-    sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
-    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Processes; results are identical for any count."),
-    batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call."),
-    threads: int = typer.Option(1, "--threads", min=1, help="Torch threads per process (part of what makes runs repeatable)."),
-    goal: str = typer.Option("fixed", "--goal", help="fixed or random goal."),
-    max_steps: int = typer.Option(300, "--max-steps", min=1, help="Steps per episode."),
-    videos: int = typer.Option(0, "--videos", min=0, help="Write MP4s (planned chunk drawn) for the first N seeds."),
-) -> None:
-    """Closed-loop evaluation of the frozen policy (behaviour cloning) on test seeds."""
-    from rich.progress import Progress
-
-    from gpc_cli.evaluation import EvalConfig, evaluate, write_results
-    from gpc_cli.reports import parse_seeds
-    from models.controllers import PolicyControllerFactory, SamplingConfig
-    from models.policy import PolicyModule
-
-    from gpc_cli.evaluation import write_spread
-
-    samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
-    factory = PolicyControllerFactory(str(checkpoint), SamplingConfig(method, steps))
-    PolicyModule.load_from_checkpoint(str(checkpoint))  # fail here, with one line, on a bad checkpoint
-    results = []
-    for s in samplings:
-        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), goal=goal, max_steps=max_steps, batch=batch,
-                            workers=workers, threads=threads, sampling_seed=s,
-                            video_dir=str(out / "videos") if videos and s == samplings[0] else None,
-                            videos=videos if s == samplings[0] else 0)
-        with Progress() as bar:
-            tid = bar.add_task(f"episodes (sampling seed {s})", total=len(config.seeds))
-            results.append(evaluate(factory, config, on_group=lambda g: bar.advance(tid, len(g["episodes"]))))
-        write_results(results[-1], out / f"sampling-seed-{s}" if len(samplings) > 1 else out, f"BC: {checkpoint}")
-    if len(samplings) > 1:
-        write_spread(results, out, f"BC: {checkpoint}")
-    typer.echo((out / "summary.md").read_text())
 
 
 def main() -> None:

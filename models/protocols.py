@@ -34,6 +34,10 @@ class Plan:
     actions: np.ndarray  # (B, n_exec, A): to execute now (receding horizon)
     chunk: np.ndarray  # (B, T', A): the planned chunk from the current step on (actions is its head)
     seconds: dict[str, float] = field(default_factory=dict)  # time by part: policy, world_model, reward, optimizer
+    scores: np.ndarray | None = None  # (B, K): each candidate's predicted reward (planners only)
+    chosen: np.ndarray | None = None  # (B,): index of the executed candidate
+    futures: np.ndarray | None = None  # (B, K, T, ...): each candidate's predicted future, when kept
+    candidates: np.ndarray | None = None  # (B, K, T, A): the candidate chunks, when futures are kept
 
 
 @runtime_checkable
@@ -50,7 +54,11 @@ class Controller(Protocol):
 
 @runtime_checkable
 class WorldModel(Protocol):
-    """Rolls out K action chunks from one (or K) observation histories in one batched, differentiable call."""
+    """Rolls out K action chunks from one (or K) observation histories in one batched, differentiable call.
+
+    Planners read the history from the observation named by an optional ``obs_key``
+    attribute (``state`` when absent; the ground-truth simulator reads ``sim``).
+    """
 
     n_obs_steps: int  # history length H the model reads
 
@@ -64,6 +72,8 @@ class WorldModel(Protocol):
 class Reward(Protocol):
     """Scores a batch of predicted futures; higher is better, differentiable for GPC-OPT."""
 
-    def __call__(self, futures: torch.Tensor) -> torch.Tensor:
-        """``(K, T, ...)`` predicted futures (states or frames) -> ``(K,)`` scores."""
+    def __call__(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        """``(K, T, ...)`` predicted futures (states or frames), goals ``(K, G)`` or None (the
+        reward's own) -> ``(K,)`` scores. A reward with ``selects = True`` only ranks one
+        history's candidates (it is called per history and never differentiated)."""
         ...

@@ -12,9 +12,10 @@ import numpy as np
 
 from tasks.pusht import geometry
 from tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
-from tasks.pusht.render import draw_plan, draw_state as render_state
+from tasks.pusht.render import draw_futures, draw_plan, draw_state as render_state
 from tasks.pusht.record import EpisodeStats, RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
 from tasks.pusht.sim import CONTROL_HZ, K_P, K_V, SIM_HZ
+from tasks.pusht.sim_model import SIM_KEY, SimulatorModel
 
 ENV_ID = "gpc/PushT-v0"
 
@@ -69,8 +70,13 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
     return len(geometry.pose_cells(states, bins)) / float(np.prod(bins))
 
 
+ACTION_LOW, ACTION_HIGH = 0.0, float(geometry.WORKSPACE)  # the action box (px targets)
+REWARD_VERTICES = geometry.TEE_BOXES.reshape(-1, 2)  # the T's corners: what the registration reward compares
+DEFAULT_GOAL = geometry.GOAL_POSE
+
+
 __all__ = [
-    "ENV_ID", "GOAL_MODES", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_plan",
+    "ACTION_HIGH", "ACTION_LOW", "DEFAULT_GOAL", "ENV_ID", "GOAL_MODES", "REWARD_VERTICES", "SIM_KEY", "SimulatorModel", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_futures", "draw_plan",
     "env_params", "episode_scores", "observe", "pose_coverage", "record", "record_keys", "render_state",
     "scripted_policy",
 ]

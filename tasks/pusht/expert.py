@@ -19,7 +19,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from tasks.pusht import geometry
-from tasks.pusht.sim import AGENT_RADIUS, DT, PushTSim, SimSnapshot
+from tasks.pusht.sim import AGENT_RADIUS, PushTSim, SimSnapshot
 
 R = AGENT_RADIUS
 COG = np.array([0.0, 45.0])  # the block's centre of gravity in block coordinates
@@ -265,10 +265,7 @@ class PushTExpert:
     def _rollout(self, snap: SimSnapshot, targets: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Block poses after each target from ``snap``, in the private scene with no cached contacts."""
         m = self._model
-        m.agent.position, m.agent.velocity = (-500.0, -500.0), (0.0, 0.0)
-        for _ in range(4):  # pymunk keeps contacts (and their impulses) a few ticks; let them lapse
-            m.space.step(DT)
-        m.restore(snap)
+        m.restore_clean(snap)
         poses = []
         for t in targets:
             m.step(t)

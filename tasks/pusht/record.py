@@ -16,6 +16,7 @@ import numpy as np
 from tasks.pusht import geometry
 from tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
 from tasks.pusht.sim import PushTSim
+from tasks.pusht.sim_model import SIM_KEY, sim_vector
 
 
 class ScriptedPolicy(Protocol):
@@ -24,7 +25,6 @@ class ScriptedPolicy(Protocol):
     def reset(self, seed: int) -> None: ...
 
     def act(self, sim: PushTSim, goal_pose: np.ndarray) -> np.ndarray: ...
-
 
 @dataclass(frozen=True)
 class RecordConfig:
@@ -39,7 +39,6 @@ class RecordConfig:
         if self.max_steps < 1:
             raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
 
-
 @dataclass(frozen=True)
 class EpisodeStats:
     seed: int
@@ -48,21 +47,22 @@ class EpisodeStats:
     success: bool
     contact_fraction: float
 
-
-def observe(env: PushTEnv, images: bool = True) -> dict[str, np.ndarray]:
+def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
     """One step's observation in the data layout (``state``, ``keypoint``, ``img``, ``goal``).
 
     Recording and closed-loop evaluation both use it, so a policy sees at test time exactly
-    the keys, shapes and dtypes it was trained on.
+    the keys, shapes and dtypes it was trained on. ``sim`` adds the full simulator state
+    that the ground-truth world model restores from (never recorded).
     """
     state = env.sim.state()
     obs = {"state": state.astype(np.float32), "keypoint": geometry.block_keypoints(state[2:5]).astype(np.float32)}
     if images:
         obs["img"] = env.render()
+    if sim:
+        obs[SIM_KEY] = sim_vector(env.sim)
     if env.config.goal == "random":
         obs["goal"] = env.goal_pose.astype(np.float32)
     return obs
-
 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
@@ -85,7 +85,6 @@ def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> t
             break
     data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
     return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))
-
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray, goal_pose: np.ndarray = geometry.GOAL_POSE) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its block poses."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, to_world
+from tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, tee_vertices, to_world
 from tasks.pusht.sim import AGENT_RADIUS, WALL_RADIUS, WALLS
 
 # RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255).
@@ -83,4 +83,29 @@ def draw_plan(frame: np.ndarray, chunk: np.ndarray, executed: int) -> np.ndarray
         cv2.circle(frame, tuple(p.tolist()), radius, color, thickness=-1)
         if i:
             cv2.line(frame, tuple(pts[i - 1].tolist()), tuple(p.tolist()), color, thickness=max(1, radius // 2))
+    return frame
+
+
+def draw_futures(frame: np.ndarray, futures: np.ndarray, scores: np.ndarray, chosen: int, top: int = 5) -> np.ndarray:
+    """Overlay K predicted futures ``(K, T, 5)`` (states) on an RGB frame, in place.
+
+    Each candidate's predicted agent path is a thin line coloured by its score (blue: worst,
+    red: best); the predicted final block outline of the ``top`` best is drawn, the chosen
+    one thick and green. This is the picture behind "why did it pick that?".
+    """
+    scale = frame.shape[0] / WORKSPACE
+    scores = np.asarray(scores, dtype=np.float64)
+    lo, hi = float(scores.min()), float(scores.max())
+    rank = (scores - lo) / (hi - lo) if hi > lo else np.ones_like(scores)
+    order = np.argsort(scores)  # worst first, so the best are drawn on top
+    for k in order:
+        colour = (int(255 * rank[k]), 60, int(255 * (1 - rank[k])))
+        pts = np.round(futures[k, :, :2] * scale).astype(np.int32)
+        cv2.polylines(frame, [pts], False, colour, thickness=1, lineType=cv2.LINE_AA)
+    for k in list(order[::-1][:top]) + [chosen]:
+        width, colour = (2, (0, 160, 0)) if k == chosen else (1, (90, 90, 90))
+        for box in tee_vertices(futures[k, -1, 2:5]):
+            cv2.polylines(frame, [np.round(box * scale).astype(np.int32)], True, colour, thickness=width, lineType=cv2.LINE_AA)
+    cv2.putText(frame, f"K={len(scores)} best {hi:.1f}", (4, frame.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX,
+                frame.shape[0] / 900, (0, 0, 0), 1, cv2.LINE_AA)
     return frame

@@ -116,6 +116,18 @@ class PushTSim:
         self.block.velocity = (bvx, bvy)
         self.block.angular_velocity = bw
 
+    def restore_clean(self, snap: SimSnapshot) -> None:
+        """``restore`` after letting cached contacts lapse, for a private lookahead scene.
+
+        pymunk keeps contacts (and their warm-start impulses) a few ticks and cannot save
+        them; parking the agent far away for 4 empty ticks clears them, so every lookahead
+        from the same snapshot is the same, whatever the scene did before.
+        """
+        self.agent.position, self.agent.velocity = (-500.0, -500.0), (0.0, 0.0)
+        for _ in range(4):
+            self.space.step(DT)
+        self.restore(snap)
+
     # ------------------------------------------------------------------ dynamics
     def step(self, action: np.ndarray) -> int:
         """Track target ``action`` (px) for one control period; returns contact points per tick."""

@@ -1,0 +1,132 @@
+"""Paired comparisons of closed-loop results: each planner against BC on the same seeds.
+
+Every planner draws its policy proposals from the same per-episode random stream as BC,
+so the per-seed difference isolates planning. The table reports the mean difference with
+a paired 95% confidence interval (Student t over seeds) and, given the ground-truth
+simulator's result, the share of the BC-to-ceiling gap a planner closes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from datasets.errors import DataError
+
+# The paper's Table I (state Push-T, 100 seeds), keyed by our controller labels.
+PAPER = {
+    "pusht-state": {
+        "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
+        "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,
+    },
+}
+
+
+def t_quantile(p: float, dof: int) -> float:
+    """Student t quantile by a Cornish-Fisher expansion of the normal one (error < 1e-3 for dof >= 5)."""
+    z = _normal_quantile(p)
+    v = float(dof)
+    return (z + (z**3 + z) / (4 * v) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * v**2)
+            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * v**3))
+
+
+def _normal_quantile(p: float) -> float:
+    lo, hi = -10.0, 10.0
+    for _ in range(100):  # bisection on the normal CDF
+        mid = (lo + hi) / 2
+        if 0.5 * (1 + math.erf(mid / math.sqrt(2))) < p:
+            lo = mid
+        else:
+            hi = mid
+    return (lo + hi) / 2
+
+
+def paired_interval(diffs: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean of per-seed differences and its two-sided ``level`` confidence interval."""
+    n = len(diffs)
+    mean = float(np.mean(diffs))
+    if n < 2:
+        return mean, float("nan"), float("nan")
+    half = t_quantile(0.5 + level / 2, n - 1) * float(np.std(diffs, ddof=1)) / math.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+def load_run(path: Path) -> dict[str, Any]:
+    """A `gpc eval` output directory (or its first sampling seed's) as summary + per-seed rows."""
+    path = Path(path)
+    for d in (path, path / "sampling-seed-0"):
+        if (d / "episodes.json").is_file() and (d / "summary.json").is_file():
+            summary = json.loads((d / "summary.json").read_text())
+            rows = {r["seed"]: r for r in json.loads((d / "episodes.json").read_text())}
+            label = summary.get("controller", {}).get("controller", d.name)
+            return {"path": str(path), "label": label, "summary": summary, "rows": rows}
+    raise DataError(f"{path}: no gpc eval results here (episodes.json, summary.json); run `gpc eval ... --out {path}` first")
+
+
+def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) -> dict[str, Any]:
+    """One row per run: score, success, paired differences to BC, gap closed, seconds per decision."""
+    base = load_run(baseline)
+    seeds = sorted(base["rows"])
+    top = load_run(ceiling) if ceiling else None
+    table = []
+    for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)]:
+        missing = [s for s in seeds if s not in run["rows"]]
+        if missing:
+            raise DataError(f"{run['path']}: lacks seed(s) {missing[:5]} of the baseline; compare runs on the same seeds")
+        score = np.array([run["rows"][s]["score"] for s in seeds])
+        success = np.array([float(run["rows"][s]["success"]) for s in seeds])
+        b_score = np.array([base["rows"][s]["score"] for s in seeds])
+        b_success = np.array([float(base["rows"][s]["success"]) for s in seeds])
+        d, lo, hi = paired_interval(score - b_score)
+        ds, slo, shi = paired_interval(success - b_success)
+        row = {
+            "label": run["label"], "path": run["path"], "seeds": len(seeds),
+            "score": float(score.mean()), "success": float(success.mean()),
+            "score_diff": d, "score_ci": [lo, hi], "success_diff": ds, "success_ci": [slo, shi],
+            "s_per_decision": run["summary"]["decision_latency_s"]["p50"],
+            "s_per_call": run["summary"]["call_latency_s"]["p50"],
+            "time_share": run["summary"].get("time_share", {}),
+        }
+        if top is not None:
+            t_score = float(np.mean([top["rows"][s]["score"] for s in seeds]))
+            t_success = float(np.mean([float(top["rows"][s]["success"]) for s in seeds]))
+            gap, gap_s = t_score - b_score.mean(), t_success - b_success.mean()
+            row["gap_closed_score"] = float(d / gap) if gap > 0 else float("nan")
+            row["gap_closed_success"] = float(ds / gap_s) if gap_s > 0 else float("nan")
+        table.append(row)
+    return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "rows": table}
+
+
+def _pct(x: float) -> str:
+    return "n/a" if x != x else f"{100 * x:.0f}%"
+
+
+def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | None = None) -> str:
+    """Markdown (and JSON beside it) of a ``compare_runs`` table; returns the Markdown."""
+    if paper is not None and paper not in PAPER:
+        raise ValueError(f"--paper {paper!r}: known tables are {', '.join(PAPER)}")
+    figures = PAPER.get(paper, {}) if paper else {}
+    head = "| controller | " + ("paper | " if figures else "") + (
+        "score | success | score - BC [95% CI] | success - BC [95% CI] | gap closed (score / success) "
+        "| s/decision | time share |")
+    lines = [f"# {title}", "", f"Paired over {table['rows'][0]['seeds']} seeds; baseline {table['baseline']}"
+             + (f"; ceiling {table['ceiling']}" if table["ceiling"] else "") + ".", "", head,
+             "|" + "---|" * (head.count("|") - 1)]
+    for r in table["rows"]:
+        share = ", ".join(f"{k} {v:.0%}" for k, v in sorted(r["time_share"].items(), key=lambda kv: -kv[1]))
+        gap = f"{_pct(r.get('gap_closed_score', float('nan')))} / {_pct(r.get('gap_closed_success', float('nan')))}"
+        lines.append(
+            f"| {r['label']} | " + (f"{figures.get(r['label'], float('nan')):.3f} | ".replace("nan", "-") if figures else "")
+            + f"{r['score']:.3f} | {r['success']:.2f} | {r['score_diff']:+.3f} [{r['score_ci'][0]:+.3f}, {r['score_ci'][1]:+.3f}] "
+            f"| {r['success_diff']:+.2f} [{r['success_ci'][0]:+.2f}, {r['success_ci'][1]:+.2f}] | {gap} "
+            f"| {r['s_per_decision']:.3f} | {share} |"
+        )
+    md = "\n".join(lines) + "\n\ns/decision: median seconds per decision per episode (a lockstep call divided by its episodes).\n"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(md)
+    out.with_suffix(".json").write_text(json.dumps(table, indent=2))
+    return md

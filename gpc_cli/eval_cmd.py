@@ -1,0 +1,180 @@
+"""`gpc eval` (closed loop: BC or a planner), `gpc plan` (one seed, the futures drawn) and `gpc compare`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, List, Optional
+
+import typer
+
+from gpc_cli.groups import DefaultToRun
+
+eval_app = typer.Typer(
+    cls=DefaultToRun, no_args_is_help=True,
+    help="Evaluate: `gpc eval CKPT` runs the policy (or --planner) in closed loop; `gpc eval world-model CKPT` scores predictions.",
+)
+
+Checkpoint = Annotated[Path, typer.Argument(help="Policy checkpoint (its config and normalizer are inside).")]
+PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alone), rank, opt, rank-opt, gt-sim, cem, mppi or grad.")]
+WorldModel = Annotated[Optional[str], typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
+K = Annotated[Optional[int], typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
+M = Annotated[Optional[int], typer.Option("--M", "-M", help="Gradient steps (opt, rank-opt, grad) or iterations (cem, mppi); default 30 (cem, mppi: 5).")]
+Lr = Annotated[float, typer.Option("--lr", help="Adam step size on the actions (px).")]
+Reward = Annotated[str, typer.Option("--reward", help="registration (state futures), learned (image futures) or vlm.")]
+RewardAggregate = Annotated[str, typer.Option("--reward-aggregate", help="final: the last predicted step; discounted: a discounted sum.")]
+RewardCkpt = Annotated[Optional[str], typer.Option("--reward-checkpoint", help="--reward learned: the reward checkpoint.")]
+VlmUrl = Annotated[Optional[str], typer.Option("--vlm-base-url", help="--reward vlm: an OpenAI-compatible endpoint, e.g. http://localhost:8000/v1.")]
+VlmModel = Annotated[Optional[str], typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
+Method = Annotated[Optional[str], typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
+Steps = Annotated[Optional[int], typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
+MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
+Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
+
+
+def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[str], k: Optional[int], m: Optional[int],
+                        lr: float, reward: str, aggregate: str, reward_ckpt: Optional[str], vlm_url: Optional[str],
+                        vlm_model: Optional[str], method: Optional[str], steps: Optional[int], keep_futures: bool = False):
+    """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
+    from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
+    from models.controllers import SamplingConfig
+    from models.planner_config import PlannerConfig
+    from models.policy import PolicyModule
+
+    sampling = SamplingConfig(method, steps)
+    policy = PolicyModule.load_from_checkpoint(str(checkpoint))
+    if planner == "bc":
+        if world_model or k or m:
+            raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
+        return PlannerRecipe(str(checkpoint), sampling=sampling)
+    kind = "rank" if planner == GT_SIM else planner
+    if planner == GT_SIM:
+        if world_model not in (None, GT_SIM):
+            raise ValueError(f"--planner {GT_SIM} uses the true simulator; drop --world-model {world_model}")
+        world_model = GT_SIM
+    default_m = {"rank": 0, "cem": 5, "mppi": 5}.get(kind, 30)
+    vlm = None
+    if reward == "vlm":
+        from models.vlm_reward import VLMConfig
+
+        vlm = VLMConfig(base_url=vlm_url or "", model=vlm_model or "")
+    config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
+                           opt_steps=m if m is not None else default_m, lr=lr, keep_futures=keep_futures)
+    recipe = PlannerRecipe(str(checkpoint), config, world_model,
+                           RewardSpec(reward, aggregate, reward_ckpt, vlm), sampling, policy.config.task)
+    recipe()  # build it once here: a mismatched world model or reward fails now, in one line
+    return recipe
+
+
+@eval_app.command("run")
+def eval_run(
+    checkpoint: Checkpoint,
+    planner: PlannerKind = "bc",
+    world_model: WorldModel = None,
+    k: K = None,
+    m: M = None,
+    lr: Lr = 2.0,
+    reward: Reward = "registration",
+    reward_aggregate: RewardAggregate = "final",
+    reward_checkpoint: RewardCkpt = None,
+    vlm_base_url: VlmUrl = None,
+    vlm_model: VlmModel = None,
+    method: Method = None,
+    steps: Steps = None,
+    seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
+    out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
+    sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Processes; results are identical for any count."),
+    batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call."),
+    threads: Threads = 1,
+    goal: Goal = "fixed",
+    max_steps: MaxSteps = 300,
+    videos: int = typer.Option(0, "--videos", min=0, help="Write MP4s (planned chunk and, for planners, the predicted futures) for the first N seeds."),
+) -> None:
+    """Closed-loop evaluation of the frozen policy (BC) or a planner over it, on test seeds."""
+    from rich.progress import Progress
+
+    from gpc_cli.evaluation import EvalConfig, evaluate, write_results, write_spread
+    from gpc_cli.planning import planner_summary
+    from gpc_cli.reports import parse_seeds
+
+    recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
+                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=videos > 0)
+    samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
+    results = []
+    for s in samplings:
+        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), goal=goal, max_steps=max_steps, batch=batch,
+                            workers=workers, threads=threads, sampling_seed=s,
+                            video_dir=str(out / "videos") if videos and s == samplings[0] else None,
+                            videos=videos if s == samplings[0] else 0)
+        with Progress() as bar:
+            tid = bar.add_task(f"{recipe.label} (sampling seed {s})", total=len(config.seeds))
+            result = evaluate(recipe, config, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
+        result["controller"] = planner_summary(recipe)
+        results.append(result)
+        write_results(result, out / f"sampling-seed-{s}" if len(samplings) > 1 else out, f"{recipe.label}: {checkpoint}")
+    if len(samplings) > 1:
+        write_spread(results, out, f"{recipe.label}: {checkpoint}")
+    typer.echo((out / "summary.md").read_text())
+
+
+def plan_one(
+    checkpoint: Checkpoint,
+    planner: PlannerKind = "rank",
+    world_model: WorldModel = None,
+    k: K = None,
+    m: M = None,
+    lr: Lr = 2.0,
+    reward: Reward = "registration",
+    reward_aggregate: RewardAggregate = "final",
+    reward_checkpoint: RewardCkpt = None,
+    vlm_base_url: VlmUrl = None,
+    vlm_model: VlmModel = None,
+    method: Method = None,
+    steps: Steps = None,
+    seed: int = typer.Option(100000, "--seed", min=0, help="Environment seed."),
+    out: Path = typer.Option(Path("results/plan"), "--out", "-o", help="Directory for the MP4 and the episode's JSON."),
+    goal: Goal = "fixed",
+    max_steps: MaxSteps = 300,
+    threads: Threads = 2,
+) -> None:
+    """Run one planner on one seed; the MP4 shows, per decision, the K predicted futures and their rewards."""
+    from gpc_cli.evaluation import EvalConfig, evaluate, write_results
+    from gpc_cli.planning import planner_summary
+
+    if planner == "bc":
+        raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
+    recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
+                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=True)
+    config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
+                        video_dir=str(out), videos=1)
+    result = evaluate(recipe, config)
+    result["controller"] = planner_summary(recipe)
+    write_results(result, out, f"{recipe.label}: {checkpoint}, seed {seed}")
+    row = result["episodes"][0]
+    typer.echo(f"seed {seed}: score {row['score']:.3f}, success {row['success']}, {row['steps']} steps; "
+               f"wrote {out / f'seed{seed}.mp4'} and {out / 'summary.md'}")
+
+
+def compare(
+    runs: List[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds)."),
+    baseline: Path = typer.Option(..., "--baseline", help="The BC result directory the others are paired with."),
+    ceiling: Optional[Path] = typer.Option(None, "--ceiling", help="The gt-sim result: report the share of the BC-to-ceiling gap closed."),
+    out: Path = typer.Option(Path("results/compare.md"), "--out", "-o", help="Markdown table to write (and .json beside it)."),
+    title: str = typer.Option("Planners against BC (paired over seeds)", "--title"),
+    paper: Optional[str] = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
+) -> None:
+    """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
+    from gpc_cli.compare import compare_runs, write_comparison
+
+    table = compare_runs(baseline, runs, ceiling)
+    md = write_comparison(table, out, title, paper)
+    typer.echo(md)
+    typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+
+
+def register(app: typer.Typer) -> None:
+    """Wire `gpc eval`, `gpc plan` and `gpc compare` into the root CLI."""
+    app.add_typer(eval_app, name="eval")
+    app.command("plan")(plan_one)
+    app.command("compare")(compare)

@@ -1,0 +1,218 @@
+"""Planners over real (tiny) trained policy and world model checkpoints and the real simulator."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from gpc_cli.collect import CollectJob, collect
+from gpc_cli.compare import paired_interval, t_quantile
+from gpc_cli.evaluation import episode_generator
+from gpc_cli.main import app
+from gpc_cli.planning import PlannerRecipe, RewardSpec, build_reward
+from models.controllers import PolicyController
+from models.planner_config import PLANNERS, PlannerConfig
+from models.planners import Objective, PartTimer, Planner
+from models.policy import PolicyModule
+from models.policy_config import policy_profile
+from models.training import RunConfig, train_policy
+from models.world_model import WorldModelModule
+from models.world_model_config import world_model_profile
+from models.world_model_training import train_world_model
+from tasks import get_task
+from tasks.pusht import REWARD_VERTICES, SimulatorModel, observe
+from tasks.pusht.env import PushTEnv
+
+PUSHT = get_task("pusht")
+
+
+@pytest.fixture(scope="module")
+def ckpts(tmp_path_factory) -> dict[str, str]:
+    """A keypoint policy and a state world model, each trained a few steps on real expert episodes."""
+    tmp = tmp_path_factory.mktemp("planners")
+    collect(CollectJob(out=tmp / "expert.zarr", episodes=4, images=False, max_steps=60))
+    run = dict(batch_size=32, progress=False, accelerator="cpu")
+    policy = train_policy(policy_profile("tiny", "keypoints").policy, [tmp / "expert.zarr"],
+                          RunConfig(run_dir=tmp / "policy", max_steps=20, **run))
+    wm = train_world_model(world_model_profile("tiny", 1).config, [tmp / "expert.zarr"],
+                           RunConfig(run_dir=tmp / "wm", max_steps=20, **run))
+    return {"policy": str(policy.last), "wm": str(wm.last), "dir": str(tmp)}
+
+
+def histories(seeds, sim: bool = False) -> dict[str, np.ndarray]:
+    obs = []
+    for s in seeds:
+        env = PushTEnv()
+        env.reset(seed=s)
+        o = observe(env, images=False, sim=sim)
+        obs.append({k: np.stack([v, v]) for k, v in o.items()})
+    return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+
+
+def planner(ckpts, **kw) -> Planner:
+    config = PlannerConfig(**kw)
+    policy = PolicyModule.load_from_checkpoint(ckpts["policy"])
+    return Planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), "pusht"), policy)
+
+
+def gens(seeds, sampling_seed: int = 0):
+    return [episode_generator(sampling_seed, s) for s in seeds]
+
+
+@pytest.mark.parametrize("kind,k,m", [("rank", 6, 0), ("opt", 1, 3), ("rank-opt", 3, 3), ("cem", 8, 2),
+                                      ("mppi", 8, 2), ("grad", 3, 2)])
+def test_every_planner_returns_valid_chunks(ckpts, kind, k, m):
+    assert kind in PLANNERS
+    p = planner(ckpts, kind=kind, num_proposals=k, opt_steps=m, keep_futures=True)
+    seeds = (100000, 100001)
+    plan = p.plan(histories(seeds), gens(seeds))
+    assert plan.actions.shape == (2, p.n_action_steps, 2) and plan.chunk.shape == (2, p.horizon, 2)
+    assert np.isfinite(plan.chunk).all() and plan.chunk.min() >= 0 and plan.chunk.max() <= 512
+    np.testing.assert_array_equal(plan.actions, plan.chunk[:, : p.n_action_steps])
+    assert plan.futures.shape[:3] == plan.scores.shape + (p.horizon,)
+    best = plan.scores[np.arange(2), plan.chosen]
+    assert np.all(best == plan.scores.max(axis=1))
+    np.testing.assert_allclose(plan.candidates[np.arange(2), plan.chosen], plan.chunk)
+    assert set(plan.seconds) >= {"world_model", "reward"}
+
+
+def test_rank_with_one_proposal_is_behaviour_cloning(ckpts):
+    seeds = (100000, 100001, 100002)
+    obs = histories(seeds)
+    bc = PolicyController(PolicyModule.load_from_checkpoint(ckpts["policy"])).plan(obs, gens(seeds))
+    rank = planner(ckpts, kind="rank", num_proposals=1).plan(obs, gens(seeds))
+    np.testing.assert_array_equal(rank.chunk, bc.chunk)
+    np.testing.assert_array_equal(rank.actions, bc.actions)
+
+
+def test_rank_opt_batched_equals_one_by_one(ckpts):
+    p = planner(ckpts, kind="rank-opt", num_proposals=4, opt_steps=5, lr=3.0)
+    seeds = (100000, 100001)
+    obs = histories(seeds)
+    together = p.plan(obs, gens(seeds))
+    for b, seed in enumerate(seeds):  # each history alone
+        alone = p.plan({k: v[b : b + 1] for k, v in obs.items()}, gens((seed,)))
+        np.testing.assert_allclose(alone.chunk[0], together.chunk[b], atol=1e-3)
+        np.testing.assert_allclose(alone.scores[0], together.scores[b], atol=1e-3)
+    # and each candidate optimised on its own (K = 1 per call) equals the batch of K
+    history = torch.as_tensor(obs["state"][:1])
+    init = p.policy.sample_batch({k: v[:1] for k, v in obs.items()}, 4, gens(seeds[:1]))[:, :, p.start :]
+    objective = Objective(p.world_model, p.reward, history, None, PartTimer())
+    batch = p.ascend(objective, init, PartTimer())
+    for k in range(4):
+        single = p.ascend(objective, init[:, k : k + 1], PartTimer())
+        np.testing.assert_allclose(single[0, 0].numpy(), batch[0, k].numpy(), atol=1e-3)
+
+
+def test_gradient_steps_raise_the_predicted_reward(ckpts):
+    p = planner(ckpts, kind="opt", num_proposals=1, opt_steps=10, lr=5.0)
+    seeds = (100000, 100001, 100002)
+    obs = histories(seeds)
+    init = p.policy.sample_batch(obs, 1, gens(seeds))[:, :, p.start :]
+    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
+    before, _ = objective(init)
+    after, _ = objective(p.ascend(objective, init, PartTimer()))
+    assert torch.all(after >= before - 1e-4) and torch.any(after > before + 0.1)
+
+
+def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
+    """The gt-sim planner's predicted rewards equal those the episode's own scene then produces."""
+    reward = build_reward(RewardSpec(), "pusht")
+    p = Planner(PlannerConfig(kind="rank", num_proposals=8, keep_futures=True), SimulatorModel(), reward,
+                PolicyModule.load_from_checkpoint(ckpts["policy"]))
+    for seed in (100000, 100003):
+        env = PushTEnv()
+        env.reset(seed=seed)
+        for _ in range(5):  # push the block around first so contacts are live at the decision
+            env.step(env.sim.state()[2:4])
+        o = observe(env, images=False, sim=True)
+        plan = p.plan({k: np.stack([v, v])[None] for k, v in o.items()}, gens((seed,)))
+        predicted = plan.futures[0, plan.chosen[0]]
+        states = []
+        for action in plan.chunk[0]:
+            env.step(action)
+            states.append(env.sim.state())
+        states = torch.as_tensor(np.array(states), dtype=torch.float32)[None]
+        delivered = reward(states)
+        assert float(delivered[0]) == pytest.approx(float(plan.scores[0, plan.chosen[0]]), abs=0.05)
+        np.testing.assert_allclose(reward.per_step(states)[0], reward.per_step(torch.as_tensor(predicted)[None])[0], atol=0.05)
+
+
+def test_deployment_api_acts_on_one_history(ckpts):
+    p = planner(ckpts, kind="rank-opt", num_proposals=3, opt_steps=2)
+    obs = {k: v[0] for k, v in histories((100000,)).items()}
+    chunk = p.act(obs, torch.Generator().manual_seed(0))
+    again = p.act(obs, torch.Generator().manual_seed(0))
+    assert chunk.shape == (p.horizon, 2)
+    np.testing.assert_array_equal(chunk, again)
+
+
+def test_paired_statistics():
+    assert t_quantile(0.975, 9) == pytest.approx(2.262, abs=2e-3)
+    assert t_quantile(0.975, 99) == pytest.approx(1.984, abs=1e-3)
+    mean, lo, hi = paired_interval(np.array([0.1, 0.2, 0.3, 0.0, 0.1]))
+    assert mean == pytest.approx(0.14) and lo < mean < hi and hi - mean == pytest.approx(mean - lo)
+
+
+def test_cli_eval_plan_and_compare(ckpts, tmp_path):
+    runner, base = CliRunner(), ["--seeds", "100000:100003", "--max-steps", "16", "--batch", "3"]
+    res = runner.invoke(app, ["eval", ckpts["policy"], *base, "--out", str(tmp_path / "bc")])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["eval", ckpts["policy"], "--planner", "rank", "--world-model", ckpts["wm"], "-K", "4",
+                              *base, "--out", str(tmp_path / "rank")])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["eval", ckpts["policy"], "--planner", "gt-sim", "-K", "4", *base, "--out", str(tmp_path / "gt")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / "rank" / "summary.json").read_text())
+    assert summary["controller"]["controller"] == "rank K=4" and set(summary["time_share"]) >= {"policy", "world_model"}
+    res = runner.invoke(app, ["compare", str(tmp_path / "rank"), str(tmp_path / "gt"), "--baseline", str(tmp_path / "bc"),
+                              "--ceiling", str(tmp_path / "gt"), "--out", str(tmp_path / "cmp.md"), "--paper", "pusht-state"])
+    assert res.exit_code == 0, res.output
+    table = json.loads((tmp_path / "cmp.json").read_text())
+    assert [r["label"] for r in table["rows"]] == ["bc", "rank K=4", "gt-sim K=4"]
+    assert table["rows"][0]["score_diff"] == 0.0
+    res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100001",
+                              "--max-steps", "16", "--out", str(tmp_path / "plan")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "plan" / "seed100001.mp4").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("args,expect", [
+    (["--planner", "opt", "-K", "5"], "--K 5: opt refines one proposal"),
+    (["--planner", "rank"], "--planner rank needs --world-model"),
+    (["--planner", "grad", "--world-model", "gt-sim"], "gt-sim is not differentiable"),
+    (["--planner", "rank", "--world-model", "WM", "-K", "0"], "--K 0: must lie in"),
+    (["--planner", "zigzag", "--world-model", "WM"], "--planner 'zigzag'"),
+    (["--planner", "rank", "--world-model", "POLICY"], "is a 'policy' checkpoint, expected a 'world_model'"),
+])
+def test_cli_bad_planner_options_fail_in_one_line(ckpts, tmp_path, args, expect):
+    args = [{"WM": ckpts["wm"], "POLICY": ckpts["policy"]}.get(a, a) for a in args]
+    res = CliRunner().invoke(app, ["eval", ckpts["policy"], *args, "--seeds", "100000", "--out", str(tmp_path / "o")])
+    assert res.exit_code != 0
+    assert expect in res.output and "Traceback" not in res.output
+    assert len(res.output.strip().splitlines()) == 1, res.output
+
+
+def test_world_model_of_another_task_is_refused(ckpts, tmp_path):
+    ckpt = torch.load(ckpts["wm"], weights_only=True)
+    ckpt["gpc"]["task"] = "other"
+    ckpt["hyper_parameters"]["config"]["task"] = "other"
+    torch.save(ckpt, tmp_path / "other.ckpt")
+    res = CliRunner().invoke(app, ["eval", ckpts["policy"], "--planner", "rank", "--world-model", str(tmp_path / "other.ckpt"),
+                                   "--seeds", "100000", "--out", str(tmp_path / "o")])
+    assert res.exit_code != 0 and "task" in res.output and "Traceback" not in res.output
+
+
+def test_recipe_is_picklable_and_labels(ckpts):
+    import pickle
+
+    recipe = PlannerRecipe(ckpts["policy"], PlannerConfig(kind="rank", num_proposals=7), "gt-sim")
+    assert pickle.loads(pickle.dumps(recipe)).label == "gt-sim K=7"
+    assert dataclasses.replace(recipe, planner=None, world_model=None).label == "bc"
+    assert REWARD_VERTICES.shape == (8, 2)
