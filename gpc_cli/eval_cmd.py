@@ -34,7 +34,8 @@ Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads pe
 
 def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[str], k: Optional[int], m: Optional[int],
                         lr: float, reward: str, aggregate: str, reward_ckpt: Optional[str], vlm_url: Optional[str],
-                        vlm_model: Optional[str], method: Optional[str], steps: Optional[int], keep_futures: bool = False):
+                        vlm_model: Optional[str], method: Optional[str], steps: Optional[int], keep_futures: bool = False,
+                        vlm_cache: Optional[Path] = None):
     """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
     from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
     from models.controllers import SamplingConfig
@@ -57,7 +58,9 @@ def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[st
     if reward == "vlm":
         from models.vlm_reward import VLMConfig
 
-        vlm = VLMConfig(base_url=vlm_url or "", model=vlm_model or "")
+        if not vlm_url or not vlm_model:
+            raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model (the key comes from $OPENAI_API_KEY)")
+        vlm = VLMConfig(base_url=vlm_url, model=vlm_model, cache_dir=str(vlm_cache) if vlm_cache else None)
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
                            opt_steps=m if m is not None else default_m, lr=lr, keep_futures=keep_futures)
     recipe = PlannerRecipe(str(checkpoint), config, world_model,
@@ -99,7 +102,8 @@ def eval_run(
     from gpc_cli.reports import parse_seeds
 
     recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
-                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=videos > 0)
+                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=videos > 0,
+                                 vlm_cache=out / "vlm_cache")
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
     for s in samplings:
@@ -145,7 +149,8 @@ def plan_one(
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
     recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
-                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=True)
+                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=True,
+                                 vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
     result = evaluate(recipe, config)

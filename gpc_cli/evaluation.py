@@ -76,6 +76,9 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
     for env, seed in zip(envs, seeds):
         env.reset(seed=seed)
     gens = [episode_generator(config.sampling_seed, s) for s in seeds]
+    if hasattr(controller, "start"):
+        controller.start(seeds)
+    stats_before = controller.stats() if hasattr(controller, "stats") else {}
     hist = [deque([task.observe(env, images, sim)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
     rows = [{"seed": int(s), "score": 0.0, "success": False, "steps": 0, "coverage_max": 0.0} for s in seeds]
     done = [False] * len(seeds)
@@ -113,7 +116,25 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         from gpc_cli.video import write_mp4
 
         write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
-    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts}
+    stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
+    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats}
+
+
+def _counts(after: dict[str, Any], before: dict[str, Any]) -> dict[str, Any]:
+    """Numeric counters accrued between two ``stats()`` readings (nested dicts too)."""
+    out: dict[str, Any] = {}
+    for key, value in after.items():
+        if isinstance(value, dict):
+            out[key] = _counts(value, before.get(key, {}))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            out[key] = value - before.get(key, 0)
+    return out
+
+
+def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    for key, value in more.items():
+        total[key] = _add_counts(total.get(key, {}), value) if isinstance(value, dict) else total.get(key, 0) + value
+    return total
 
 
 # ---------------------------------------------------------------------- processes
@@ -168,6 +189,9 @@ def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> 
         for name, sec in g["parts"].items():
             parts[name] = parts.get(name, 0.0) + sec
     total = sum(parts.values()) or 1.0
+    stats: dict[str, Any] = {}
+    for g in groups:
+        _add_counts(stats, g.get("stats", {}))
     return {
         "config": asdict(config),
         "episodes": rows,
@@ -176,6 +200,7 @@ def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> 
         "call_latency_s": _latency(calls),
         "decision_latency_s": _latency(per_episode),
         "time_share": {k: v / total for k, v in parts.items()},
+        **({"controller_stats": stats} if stats else {}),
         "wall_s": wall,
     }
 
@@ -201,6 +226,11 @@ def write_results(result: dict[str, Any], out: Path, title: str) -> None:
         f"{d['mean']:.4f} / {d['p50']:.4f} / {d['p95']:.4f} | {c['mean']:.3f} / {c['p50']:.3f} / {c['p95']:.3f} | "
         f"{result['wall_s']:.0f} |\n"
     )
+    stats = result.get("controller_stats", {})
+    if "fell_back" in stats:
+        md += (f"\nReward queries: {stats.get('queries', 0)} ({stats.get('cache_hits', 0)} answered from the cache); "
+               f"decisions that fell back: {stats['fell_back']} of {stats.get('decisions', 0)} "
+               f"({', '.join(f'{k} {v}' for k, v in stats.get('fallbacks', {}).items() if v) or 'none'}).\n")
     (out / "summary.md").write_text(md)
 
 

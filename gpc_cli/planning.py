@@ -72,7 +72,7 @@ def build_reward(spec: RewardSpec, task: str) -> Any:
         return ImageReward.from_checkpoint(spec.checkpoint, torch.as_tensor(t.DEFAULT_GOAL), config, task=task)
     from models.vlm_reward import VLMReward
 
-    return VLMReward(spec.vlm, render=t.render_state, fallback=registration, task_description=t.TASK_DESCRIPTION)
+    return VLMReward(spec.vlm, render=t.render_future, fallback=registration, task_description=t.TASK_DESCRIPTION)
 
 
 def check_pairing(policy: Any, world_model: Any, path: str) -> None:

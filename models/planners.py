@@ -46,9 +46,10 @@ class Objective:
     """World model + reward as one function of ``(B, K, T, A)`` chunks -> ``(B, K)`` scores."""
 
     def __init__(self, world_model: WorldModel, reward: Reward, history: torch.Tensor,
-                 goal: torch.Tensor | None, timer: PartTimer) -> None:
+                 goal: torch.Tensor | None, timer: PartTimer, episodes: Sequence[int] | None = None) -> None:
         self.world_model, self.reward, self.timer = world_model, reward, timer
         self.history, self.goal = history, goal  # (B, H, D), (B, G) or None
+        self.episodes = episodes  # ids of the B histories' episodes (a selector warns once per episode)
 
     def __call__(self, chunks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(B, K, T, A)`` -> scores ``(B, K)`` and predicted futures ``(B, K, T', ...)``."""
@@ -60,7 +61,8 @@ class Objective:
             if getattr(self.reward, "selects", False):  # a selector ranks one history's candidates at a time
                 goals = [None if self.goal is None else self.goal[i] for i in range(b)]
                 per = futures.unflatten(0, (b, k))
-                scores = torch.stack([self.reward(per[i], goals[i]) for i in range(b)])
+                ids = self.episodes if self.episodes is not None and len(self.episodes) == b else range(b)
+                scores = torch.stack([self.reward(per[i], goals[i], episode=int(ids[i])) for i in range(b)])
             else:
                 goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
                 scores = self.reward(futures, goal).unflatten(0, (b, k))
@@ -85,31 +87,41 @@ class Planner:
         self.wm_key = getattr(world_model, "obs_key", "state")
         if policy is not None:
             pc = policy.config
-            self.start = pc.n_obs_steps - 1  # index of the current step in a policy chunk
-            self.horizon = pc.horizon - self.start
+            self.now = pc.n_obs_steps - 1  # index of the current step in a policy chunk
+            self.horizon = pc.horizon - self.now
             self.n_action_steps = pc.n_action_steps
             self.obs_keys = tuple(dict.fromkeys(policy.obs_keys + (self.wm_key,)))
             self.n_obs_steps = max(pc.n_obs_steps, world_model.n_obs_steps)
         else:
             if horizon is None or n_action_steps is None:
                 raise ValueError("a planner without a policy needs horizon and n_action_steps")
-            self.start, self.horizon, self.n_action_steps = 0, horizon, n_action_steps
+            self.now, self.horizon, self.n_action_steps = 0, horizon, n_action_steps
             self.obs_keys, self.n_obs_steps = (self.wm_key,), world_model.n_obs_steps
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"n_action_steps {self.n_action_steps} must lie in 1..{self.horizon}")
         self.action_dim = policy.config.action_dim if policy is not None else 2
+        self.episodes: Sequence[int] | None = None
+
+    def start(self, episodes: Sequence[int]) -> None:
+        """The harness names the lockstep group's episodes (seeds) before its first decision."""
+        self.episodes = list(episodes)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters of the reward (a VLM's queries and fallbacks), summed over every decision so far."""
+        stats = getattr(self.reward, "stats", None)
+        return dict(stats() if callable(stats) else stats or {})
 
     # ------------------------------------------------------------------ the decision
     def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
         timer, cfg = PartTimer(), self.config
         history = torch.as_tensor(np.asarray(obs[self.wm_key]))
         goal = torch.as_tensor(np.asarray(obs[GOAL_KEY])[:, -1], dtype=torch.float32) if GOAL_KEY in obs else None
-        objective = Objective(self.world_model, self.reward, history, goal, timer)
+        objective = Objective(self.world_model, self.reward, history, goal, timer, self.episodes)
         if cfg.uses_policy:
             with timer("policy"):
                 k = 1 if cfg.kind == "opt" else cfg.num_proposals
                 chunks = self.policy.sample_batch(obs, k, list(generators), method=self.sampling.method,
-                                                  steps=self.sampling.steps)[:, :, self.start :].float()
+                                                  steps=self.sampling.steps)[:, :, self.now :].float()
             if cfg.kind != "rank":
                 chunks = self.ascend(objective, chunks, timer)
             scores, futures = objective(chunks)

@@ -102,7 +102,7 @@ def test_rank_opt_batched_equals_one_by_one(ckpts):
         np.testing.assert_allclose(alone.scores[0], together.scores[b], atol=1e-3)
     # and each candidate optimised on its own (K = 1 per call) equals the batch of K
     history = torch.as_tensor(obs["state"][:1])
-    init = p.policy.sample_batch({k: v[:1] for k, v in obs.items()}, 4, gens(seeds[:1]))[:, :, p.start :]
+    init = p.policy.sample_batch({k: v[:1] for k, v in obs.items()}, 4, gens(seeds[:1]))[:, :, p.now :]
     objective = Objective(p.world_model, p.reward, history, None, PartTimer())
     batch = p.ascend(objective, init, PartTimer())
     for k in range(4):
@@ -114,7 +114,7 @@ def test_gradient_steps_raise_the_predicted_reward(ckpts):
     p = planner(ckpts, kind="opt", num_proposals=1, opt_steps=10, lr=5.0)
     seeds = (100000, 100001, 100002)
     obs = histories(seeds)
-    init = p.policy.sample_batch(obs, 1, gens(seeds))[:, :, p.start :]
+    init = p.policy.sample_batch(obs, 1, gens(seeds))[:, :, p.now :]
     objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
     before, _ = objective(init)
     after, _ = objective(p.ascend(objective, init, PartTimer()))
@@ -216,3 +216,28 @@ def test_recipe_is_picklable_and_labels(ckpts):
     assert pickle.loads(pickle.dumps(recipe)).label == "gt-sim K=7"
     assert dataclasses.replace(recipe, planner=None, world_model=None).label == "bc"
     assert REWARD_VERTICES.shape == (8, 2)
+
+
+def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
+    """`gpc eval --planner rank --reward vlm`: real HTTP, one query per decision, fallbacks counted, cache reused."""
+    from benchmarks.vlm_server import Reply, ScriptedChatServer
+
+    args = ["eval", ckpts["policy"], "--planner", "rank", "--world-model", ckpts["wm"], "-K", "3", "--reward", "vlm",
+            "--vlm-model", "scripted-vl", "--seeds", "100000:100002", "--max-steps", "24", "--batch", "2",
+            "--out", str(tmp_path / "vlm")]
+    with ScriptedChatServer([Reply("2"), Reply("candidate two, I think")]) as server:
+        res = CliRunner().invoke(app, args + ["--vlm-base-url", server.base_url])
+        assert res.exit_code == 0, res.output
+        decisions = 2 * 3  # two episodes, 24 steps in chunks of 8
+        assert len(server.requests) == decisions
+        assert server.requests[0].body["temperature"] == pytest.approx(0.2)
+        assert len(server.requests[0].images()) == 1
+        stats = json.loads((tmp_path / "vlm" / "summary.json").read_text())["controller_stats"]
+        assert stats["queries"] == decisions and stats["fell_back"] == decisions - 1
+        assert stats["fallbacks"]["malformed"] == decisions - 1
+        assert "fell back: 5 of 6" in (tmp_path / "vlm" / "summary.md").read_text()
+        again = CliRunner().invoke(app, args + ["--vlm-base-url", server.base_url])
+        assert again.exit_code == 0, again.output
+        assert len(server.requests) == decisions  # every answer came from the cache
+    res = CliRunner().invoke(app, args[:-2] + ["--out", str(tmp_path / "v2")])
+    assert res.exit_code != 0 and "--vlm-base-url" in res.output

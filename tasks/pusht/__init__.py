@@ -73,10 +73,16 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
 ACTION_LOW, ACTION_HIGH = 0.0, float(geometry.WORKSPACE)  # the action box (px targets)
 REWARD_VERTICES = geometry.TEE_BOXES.reshape(-1, 2)  # the T's corners: what the registration reward compares
 DEFAULT_GOAL = geometry.GOAL_POSE
+TASK_DESCRIPTION = "push the grey T-shaped block so that it covers the green T-shaped goal exactly"
+
+
+def render_future(state: np.ndarray, goal: np.ndarray | None = None, size: int = 96) -> np.ndarray:
+    """A predicted state drawn as the camera would show it (the goal drawn too), for a VLM to judge."""
+    return render_state(state, DEFAULT_GOAL if goal is None else np.asarray(goal, dtype=np.float64), size)
 
 
 __all__ = [
-    "ACTION_HIGH", "ACTION_LOW", "DEFAULT_GOAL", "ENV_ID", "GOAL_MODES", "REWARD_VERTICES", "SIM_KEY", "SimulatorModel", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_futures", "draw_plan",
-    "env_params", "episode_scores", "observe", "pose_coverage", "record", "record_keys", "render_state",
+    "ACTION_HIGH", "ACTION_LOW", "DEFAULT_GOAL", "ENV_ID", "GOAL_MODES", "REWARD_VERTICES", "SIM_KEY", "SimulatorModel", "TASK_DESCRIPTION", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_futures", "draw_plan",
+    "env_params", "episode_scores", "observe", "pose_coverage", "record", "record_keys", "render_future", "render_state",
     "scripted_policy",
 ]
