@@ -107,10 +107,10 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                 row["score"] = max(row["score"], float(reward))
                 row["coverage_max"] = max(row["coverage_max"], float(info["coverage"]))
                 row["success"] = row["success"] or bool(terminated)
+                hist[i].append(task.observe(env, images, sim))  # every step: the history is consecutive steps, as in training
                 if terminated or row["steps"] >= config.max_steps:
                     done[i] = True
                     break
-            hist[i].append(task.observe(env, images, sim))
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
     for i, film in films.items():
         from gpc_cli.video import write_mp4

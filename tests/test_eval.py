@@ -13,7 +13,7 @@ import torch
 from typer.testing import CliRunner
 
 from gpc_cli.collect import CollectJob, collect
-from gpc_cli.evaluation import EvalConfig, episode_generator, evaluate, write_results
+from gpc_cli.evaluation import EvalConfig, episode_generator, evaluate, run_group, write_results
 from gpc_cli.main import app
 from models.controllers import PolicyControllerFactory
 from models.policy_config import policy_profile
@@ -113,3 +113,33 @@ def test_eval_cli_rejects_bad_checkpoints_in_one_line(tmp_path, make, expect):
     lines = [line for line in res.output.splitlines() if line.strip()]
     assert len(lines) == 1 and expect in lines[0].lower()
     assert not (tmp_path / "o").exists()
+
+
+@dataclass
+class Recorder:
+    """Drives the agent towards a far corner and keeps every observation history it is handed."""
+
+    obs_keys: tuple[str, ...] = ("state",)
+    n_obs_steps: int = 2
+
+    def __post_init__(self) -> None:
+        self.seen: list[np.ndarray] = []
+
+    def plan(self, obs, generators) -> Plan:
+        self.seen.append(obs["state"].copy())
+        chunk = np.tile(np.array([450.0, 450.0]), (obs["state"].shape[0], 8, 1))
+        return Plan(actions=chunk, chunk=chunk)
+
+
+def test_history_holds_consecutive_steps_like_the_training_windows():
+    """Diffusion Policy conditions on o_{t-1}, o_t; a history of o_{t-8}, o_t halves the scores (measured)."""
+    recorder = Recorder()
+    run_group(recorder, (100000,), EvalConfig(seeds=(100000,), max_steps=16, batch=1))
+    env = PushTEnv()
+    env.reset(seed=100000)
+    states = [env.sim.state()]
+    for _ in range(8):
+        env.step(np.array([450.0, 450.0]))
+        states.append(env.sim.state())
+    np.testing.assert_allclose(recorder.seen[0][0], np.stack([states[0], states[0]]), atol=1e-4)
+    np.testing.assert_allclose(recorder.seen[1][0], np.stack([states[7], states[8]]), atol=1e-4)
