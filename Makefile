@@ -11,21 +11,58 @@ RUN_DIR ?= runs/pusht-$(PROFILE)
 RESULTS ?= results/pusht-$(PROFILE)
 
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
+# PLANNERS: the controllers evaluated on the same seeds (result folder names); ARGS.NAME: their gpc eval options.
 ifeq ($(PROFILE),smoke)
   EXPERT_EPISODES := 4
   EXPLORE_EPISODES := 4
   POLICY := --profile tiny --max-steps 40
+  WM1 := --profile tiny --max-steps 40
+  WM2 := --profile tiny --max-steps 10
   EVAL := --seeds 100000:100004 --max-steps 40 --batch 4
+  PLANNERS := rank-K4 opt-M3 rank-opt-4x3 cem-8x2 mppi-8x2 grad-4x3
+  ARGS.rank-K4 := --planner rank -K 4
+  ARGS.opt-M3 := --planner opt -M 3
+  ARGS.rank-opt-4x3 := --planner rank-opt -K 4 -M 3
+  ARGS.cem-8x2 := --planner cem -K 8 -M 2
+  ARGS.mppi-8x2 := --planner mppi -K 8 -M 2
+  ARGS.grad-4x3 := --planner grad -K 4 -M 3
+  CEILING := gt-sim-K4
+  ARGS.gt-sim-K4 := --planner gt-sim -K 4
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
   POLICY := --profile paper
+  WM1 := --profile cpu
+  WM2 := --profile cpu
   EVAL := --seeds 100000:100100 --batch 50
+  PLANNERS := rank-K100 rank-K1000 opt-M30 rank-opt-10x30 rank-opt-20x30 cem-100x5 mppi-100x5 grad-100x30
+  ARGS.rank-K100 := --planner rank -K 100
+  ARGS.rank-K1000 := --planner rank -K 1000
+  ARGS.opt-M30 := --planner opt -M 30
+  ARGS.rank-opt-10x30 := --planner rank-opt -K 10 -M 30
+  ARGS.rank-opt-20x30 := --planner rank-opt -K 20 -M 30
+  ARGS.cem-100x5 := --planner cem -K 100 -M 5
+  ARGS.mppi-100x5 := --planner mppi -K 100 -M 5
+  ARGS.grad-100x30 := --planner grad -K 100 -M 30
+  CEILING := gt-sim-K100
+  ARGS.gt-sim-K100 := --planner gt-sim -K 100
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
   POLICY := --profile cpu
-  EVAL := --seeds 100000:100050 --batch 25
+  WM1 := --profile cpu --max-steps 6000
+  WM2 := --profile cpu --max-steps 2000
+  EVAL := --seeds 100000:100100 --batch 25
+  PLANNERS := rank-K10 rank-K100 opt-M30 rank-opt-10x30 cem-100x5 mppi-100x5 grad-10x30
+  ARGS.rank-K10 := --planner rank -K 10
+  ARGS.rank-K100 := --planner rank -K 100
+  ARGS.opt-M30 := --planner opt -M 30
+  ARGS.rank-opt-10x30 := --planner rank-opt -K 10 -M 30
+  ARGS.cem-100x5 := --planner cem -K 100 -M 5
+  ARGS.mppi-100x5 := --planner mppi -K 100 -M 5
+  ARGS.grad-10x30 := --planner grad -K 10 -M 30
+  CEILING := gt-sim-K100
+  ARGS.gt-sim-K100 := --planner gt-sim -K 100
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
@@ -56,20 +93,58 @@ bench: $(STAMP)
 check-sim: $(STAMP)
 	$(BIN)/gpc check-sim
 
-# Each stage resumes: re-running skips the episodes already collected.
-reproduce-pusht: $(STAMP)
+# Each stage is a file target: it runs when its output is missing or older than its inputs, and
+# collection and training resume from what an interrupted run left.
+POLICY_CKPT := $(RUN_DIR)/policy/checkpoints/last.ckpt
+WM_CKPT := $(RUN_DIR)/wm-phase2/checkpoints/last.ckpt
+TABLE := $(if $(filter cpu,$(PROFILE)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
+
+$(RUN_DIR)/expert.done: | $(STAMP)
 	$(BIN)/gpc collect --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
-	$(BIN)/gpc collect --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/expert.zarr
+	touch $@
+
+$(RUN_DIR)/explore.done: | $(STAMP)
+	$(BIN)/gpc collect --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
-	test -f $(RUN_DIR)/policy/done || { \
-	  if [ -f $(RUN_DIR)/policy/checkpoints/last.ckpt ]; then resume=--resume; fi; \
-	  $(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs keypoints $(POLICY) --seed 0 \
-	    --out $(RUN_DIR)/policy $$resume && touch $(RUN_DIR)/policy/done; }
-	test -f $(RESULTS)/bc/summary.md || $(BIN)/gpc eval $(RUN_DIR)/policy/checkpoints/last.ckpt \
-	  $(EVAL) --workers $(WORKERS) --out $(RESULTS)/bc
-	@echo "Stages to come (open issues): train the world model (phase 1, 2) and the rewards, evaluate"
-	@echo "GPC-RANK, GPC-OPT, GPC-RANK+OPT and the baselines next to BC into results/pusht_state.md."
+	touch $@
+
+$(RUN_DIR)/policy.done: $(RUN_DIR)/expert.done
+	if [ -f $(POLICY_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs keypoints $(POLICY) --seed 0 \
+	  --out $(RUN_DIR)/policy $$resume
+	touch $@
+
+$(RUN_DIR)/wm-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(RUN_DIR)/wm-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --phase 1 --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr \
+	  $(WM1) --seed 0 --out $(RUN_DIR)/wm-phase1 $$resume
+	touch $@
+
+$(RUN_DIR)/wm-phase2.done: $(RUN_DIR)/wm-phase1.done
+	if [ -f $(WM_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --phase 2 --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr \
+	  $(WM2) --seed 0 --out $(RUN_DIR)/wm-phase2 $$resume
+	$(BIN)/gpc eval world-model $(WM_CKPT) --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
+	touch $@
+
+$(RESULTS)/bc/summary.json: $(RUN_DIR)/policy.done
+	$(BIN)/gpc eval $(POLICY_CKPT) $(EVAL) --workers $(WORKERS) --out $(RESULTS)/bc
+
+# One eval per planner, each skipped once its summary is newer than the checkpoints it used.
+define planner_rule
+$(RESULTS)/$(1)/summary.json: $(RUN_DIR)/policy.done $(RUN_DIR)/wm-phase2.done
+	$(BIN)/gpc eval $(POLICY_CKPT) $(ARGS.$(1)) $(if $(findstring gt-sim,$(1)),,--world-model $(WM_CKPT)) $(EVAL) --workers $(WORKERS) --out $(RESULTS)/$(1)
+endef
+$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call planner_rule,$(n))))
+
+$(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
+	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
+	  --ceiling $(RESULTS)/$(CEILING) --paper pusht-state --out $@ \
+	  --title "State Push-T, PROFILE=$(PROFILE): planners against BC (policy trained on expert data)"
+
+reproduce-pusht: $(TABLE)
+	@cat $(TABLE)
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

@@ -130,3 +130,40 @@ def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | 
     out.write_text(md)
     out.with_suffix(".json").write_text(json.dumps(table, indent=2))
     return md
+
+
+def plot_comparison(table: dict[str, Any], path: Path, size: tuple[int, int] = (900, 560)) -> Path:
+    """PNG: mean score against seconds per decision (log axis), one labelled point per controller."""
+    import cv2
+
+    rows = [r for r in table["rows"] if r["s_per_decision"] > 0]
+    if not rows:
+        raise DataError("no controller with a positive decision time to plot")
+    w, h = size
+    left, right, top, bottom = 70, 30, 30, 60
+    img = np.full((h, w, 3), 255, np.uint8)
+    xs = np.log10([r["s_per_decision"] for r in rows])
+    x_lo, x_hi = float(np.floor(xs.min())), float(np.ceil(xs.max() + 1e-9))
+    x_hi = max(x_hi, x_lo + 1)
+    y_lo = min(0.0, float(np.floor(min(r["score"] for r in rows) * 10) / 10))
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return (int(left + (x - x_lo) / (x_hi - x_lo) * (w - left - right)),
+                int(h - bottom - (y - y_lo) / (1.0 - y_lo) * (h - top - bottom)))
+
+    black, grey, font = (0, 0, 0), (200, 200, 200), cv2.FONT_HERSHEY_SIMPLEX
+    for e in range(int(x_lo), int(x_hi) + 1):
+        cv2.line(img, px(e, y_lo), px(e, 1.0), grey, 1)
+        cv2.putText(img, f"{10.0 ** e:g} s", (px(e, y_lo)[0] - 20, h - bottom + 22), font, 0.45, black, 1, cv2.LINE_AA)
+    for y in np.arange(y_lo, 1.0001, 0.1):
+        cv2.line(img, px(x_lo, y), px(x_hi, y), grey, 1)
+        cv2.putText(img, f"{y:.1f}", (20, px(x_lo, y)[1] + 5), font, 0.45, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "seconds per decision (per episode, log scale)", (w // 2 - 190, h - 12), font, 0.5, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "mean score", (5, 18), font, 0.5, black, 1, cv2.LINE_AA)
+    for r, x in zip(rows, xs):
+        p = px(float(x), r["score"])
+        cv2.circle(img, p, 5, (200, 40, 40) if r["label"] == "bc" else (40, 90, 200), -1, cv2.LINE_AA)
+        cv2.putText(img, r["label"], (p[0] + 7, p[1] - 6), font, 0.42, black, 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    return path

@@ -170,12 +170,13 @@ def compare(
     paper: Optional[str] = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
 ) -> None:
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
-    from gpc_cli.compare import compare_runs, write_comparison
+    from gpc_cli.compare import compare_runs, plot_comparison, write_comparison
 
     table = compare_runs(baseline, runs, ceiling)
     md = write_comparison(table, out, title, paper)
+    plot = plot_comparison(table, out.with_suffix(".png"))
     typer.echo(md)
-    typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+    typer.echo(f"wrote {out}, {out.with_suffix('.json')} and {plot}")
 
 
 def register(app: typer.Typer) -> None:

@@ -175,6 +175,7 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
                               "--ceiling", str(tmp_path / "gt"), "--out", str(tmp_path / "cmp.md"), "--paper", "pusht-state"])
     assert res.exit_code == 0, res.output
     table = json.loads((tmp_path / "cmp.json").read_text())
+    assert (tmp_path / "cmp.png").stat().st_size > 1000
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=4", "gt-sim K=4"]
     assert table["rows"][0]["score_diff"] == 0.0
     res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100001",
