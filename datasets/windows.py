@@ -48,7 +48,7 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str], check_finite: 
             if check_finite and np.issubdtype(arr.dtype, np.floating):
                 if not np.all(np.isfinite(arr)):
                     raise DataError(f"{path}: data/{key} holds NaN or inf")
-            if key in IMAGE_KEYS:
+            if key in IMAGE_KEYS and arr.dtype != np.uint8:  # (uint8 already is; rint would widen it)
                 arr = np.clip(np.rint(arr), 0, 255).astype(np.uint8)
             if parts[key] and parts[key][0].shape[1:] != arr.shape[1:]:
                 raise DataError(f"{path}: data/{key} rows are {arr.shape[1:]}, other stores have {parts[key][0].shape[1:]}")

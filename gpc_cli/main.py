@@ -10,6 +10,7 @@ import typer
 
 from gpc_cli.errors import OneLineErrors, check_import_layout
 from gpc_cli.eval_cmd import eval_app, register as register_eval
+from gpc_cli.reward import evaluate as eval_reward, train as train_reward
 from gpc_cli.train import train_app
 from gpc_cli.world_model import evaluate as eval_world_model, train as train_world_model
 
@@ -23,6 +24,8 @@ app.add_typer(train_app, name="train")
 register_eval(app)
 train_app.command("world-model")(train_world_model)
 eval_app.command("world-model")(eval_world_model)
+train_app.command("reward")(train_reward)
+eval_app.command("reward")(eval_reward)
 
 
 @app.command()

@@ -5,6 +5,11 @@ at that pose and at the goal pose (a pose ``(x, y, theta)`` maps an object point
 ``(x, y) + R(theta) p``). The caller supplies the vertices, the goal and where the pose
 sits in the state vector, so this module knows no task. Higher reward is better: the
 reward is ``-registration`` (0 at the goal, negative elsewhere), differentiable and batched.
+
+Both rewards share ``PoseReward``: a future becomes one object pose per step, the pose
+becomes ``-registration`` against the goal, and ``aggregate`` turns the ``(K, T)`` per-step
+rewards into ``(K,)`` scores. ``RegistrationReward`` reads the pose from predicted states;
+``models.reward_predictor.ImageReward`` predicts it from predicted frames.
 """
 
 from __future__ import annotations
@@ -56,12 +61,22 @@ def registration_distance(poses: torch.Tensor, goals: torch.Tensor, vertices: to
     return (torch.sqrt(d2 + eps * eps) - eps).mean(dim=-1)
 
 
-class RegistrationReward(nn.Module):
-    """``-registration`` of the predicted object pose against the goal, aggregated over the predicted steps.
+def aggregate(rewards: torch.Tensor, config: RewardConfig) -> torch.Tensor:
+    """``(K, T)`` per-step rewards -> ``(K,)`` scores: the last step's, or ``sum_t discount**t r_t``."""
+    if config.aggregate == "final":
+        return rewards[:, -1]
+    weights = config.discount ** torch.arange(rewards.shape[1], dtype=rewards.dtype, device=rewards.device)
+    return (rewards * weights).sum(dim=1)
 
-    ``vertices``: ``(V, 2)`` object-frame points (Push-T: the T's 8 box corners); ``goal``:
-    ``(3,)`` pose. A call may pass its own goals ``(3,)`` or ``(K, 3)`` (a goal per candidate,
-    for tasks whose goal varies per episode).
+
+class PoseReward(nn.Module):
+    """``-registration`` of an object pose read from each predicted step, aggregated over the steps.
+
+    Subclasses say how a future ``(K, T, ...)`` becomes poses ``(K, T, 3)`` (``poses``): read
+    from a state vector (``RegistrationReward``) or predicted from a frame (``ImageReward``
+    in ``models.reward_predictor``). ``vertices``: ``(V, 2)`` object-frame points (Push-T:
+    the T's 8 box corners); ``goal``: ``(3,)`` pose. A call may pass its own goals ``(3,)``
+    or ``(K, 3)`` (a goal per candidate, for tasks whose goal varies per episode).
     """
 
     def __init__(self, vertices: torch.Tensor, goal: torch.Tensor, config: RewardConfig = RewardConfig()) -> None:
@@ -74,20 +89,31 @@ class RegistrationReward(nn.Module):
         self.register_buffer("vertices", vertices)
         self.register_buffer("goal", goal)
 
-    def per_step(self, states: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
-        """``(K, T, D)`` predicted states -> ``(K, T)`` rewards (0 at the goal, negative elsewhere)."""
-        if states.dim() != 3 or states.shape[-1] <= max(self.config.pose_dims):
-            raise ValueError(f"states: expected (K, T, D > {max(self.config.pose_dims)}), got {tuple(states.shape)}")
-        poses = states[..., list(self.config.pose_dims)]
-        goal = self.goal if goal is None else torch.as_tensor(goal, dtype=states.dtype, device=states.device)
+    def poses(self, futures: torch.Tensor) -> torch.Tensor:
+        """``(K, T, ...)`` predicted futures -> ``(K, T, 3)`` object poses ``(x, y, theta)``."""
+        raise NotImplementedError
+
+    def per_step(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        """``(K, T, ...)`` predicted futures -> ``(K, T)`` rewards (0 at the goal, negative elsewhere)."""
+        poses = self.poses(futures)
+        goal = self.goal if goal is None else torch.as_tensor(goal, dtype=poses.dtype, device=poses.device)
         if goal.dim() == 2:  # (K, 3): one goal per candidate, the same for all its steps
             goal = goal[:, None]
-        return -registration_distance(poses, goal.to(states.dtype), self.vertices.to(states.dtype))
+        return -registration_distance(poses, goal.to(poses.dtype), self.vertices.to(poses.dtype))
 
-    def forward(self, states: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
-        """``(K, T, D)`` predicted states -> ``(K,)`` scores, higher is better."""
-        rewards = self.per_step(states, goal)
-        if self.config.aggregate == "final":
-            return rewards[:, -1]
-        weights = self.config.discount ** torch.arange(rewards.shape[1], dtype=rewards.dtype, device=rewards.device)
-        return (rewards * weights).sum(dim=1)
+    def forward(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        """``(K, T, ...)`` predicted futures -> ``(K,)`` scores, higher is better."""
+        return aggregate(self.per_step(futures, goal), self.config)
+
+
+class RegistrationReward(PoseReward):
+    """``-registration`` of the predicted object pose against the goal, aggregated over the predicted steps.
+
+    Futures are states ``(K, T, D)``; the pose sits at ``config.pose_dims``. See ``PoseReward``
+    for the vertices, the goal and per-candidate goals.
+    """
+
+    def poses(self, states: torch.Tensor) -> torch.Tensor:
+        if states.dim() != 3 or states.shape[-1] <= max(self.config.pose_dims):
+            raise ValueError(f"states: expected (K, T, D > {max(self.config.pose_dims)}), got {tuple(states.shape)}")
+        return states[..., list(self.config.pose_dims)]

@@ -1,0 +1,189 @@
+"""Training the image reward's pose predictor, and measuring it against the true registration loss.
+
+Training runs through the shared loop of ``models.training`` (same run directory, resume
+and NaN handling as the policy's) on single-frame windows (``n_obs_steps = horizon = 1``)
+of every episode, split by whole episodes. ``evaluate_reward_predictor`` reads held-out
+frames (the validation episodes of the training split, or every episode of a store the
+predictor never saw, e.g. the human demonstrations) and compares the predicted registration
+loss with the one computed from the recorded state.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.utilities import rank_zero_only
+
+from datasets.datamodule import DataConfig, EpisodeDataModule
+from datasets.errors import DataError
+from datasets.sequence import split_episodes
+from datasets.store import EpisodeStore
+from models.checkpoint import read_checkpoint
+from models.reward_predictor import (
+    IMAGE_KEY, KIND, OBS_TYPE, STATE_KEY, RewardPredictorConfig, RewardPredictorModule, pose_errors, resize,
+)
+from models.training import RunConfig, TrainResult, check_run_dir, fit_module
+
+SPLITS = ("val", "all")
+BINS_PX = (0.0, 10.0, 30.0, 100.0, float("inf"))  # true registration loss bins of the report
+
+
+def reward_data_config(datasets: Sequence[str | os.PathLike], run: RunConfig) -> DataConfig:
+    """Single-frame windows: one image and its recorded state per sample."""
+    return DataConfig(
+        paths=tuple(str(p) for p in datasets), obs_keys=(IMAGE_KEY, STATE_KEY), horizon=1, n_obs_steps=1,
+        n_action_steps=1, val_ratio=run.val_ratio, seed=run.seed, batch_size=run.batch_size, num_workers=run.num_workers,
+    )
+
+
+@rank_zero_only
+def _write_run_record(run_dir: Path, config: RewardPredictorConfig, record: dict[str, Any], run: RunConfig) -> None:
+    out = {"kind": KIND, "reward_predictor": config.to_dict(), **record,
+           "run": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(run).items()}}
+    (run_dir / "run.json").write_text(json.dumps(out, indent=2))
+
+
+def train_reward_predictor(config: RewardPredictorConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> TrainResult:
+    """Train (or resume) the pose predictor on the frames of the given stores (labels: their recorded states)."""
+    run_dir = Path(run.run_dir)
+    last = check_run_dir(run)
+    start_step = 0
+    if run.resume:
+        ckpt = read_checkpoint(last, KIND, task=config.task, obs=OBS_TYPE)
+        try:
+            config = RewardPredictorConfig.from_dict(ckpt["hyper_parameters"]["config"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{last}: reward checkpoint with an unreadable config ({exc})") from None
+        start_step = int(ckpt.get("global_step", 0))
+    config.check_task()
+
+    data = EpisodeDataModule(reward_data_config(datasets, run))
+    img, state = data.arrays.data[IMAGE_KEY], data.arrays.data[STATE_KEY]
+    if img.ndim != 4 or img.shape[-1] != 3:
+        raise DataError(f"{datasets[0]}: data/{IMAGE_KEY} rows are {img.shape[1:]}, the reward needs RGB frames (H, W, 3)")
+    if state.ndim != 2 or state.shape[1] <= max(config.pose_dims):
+        raise DataError(f"{datasets[0]}: data/{STATE_KEY} rows are {state.shape[1:]}, the pose sits at {config.pose_dims}")
+    record = {"datasets": [str(p) for p in datasets], "val_ratio": run.val_ratio, "seed": run.seed}
+    (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
+    _write_run_record(run_dir, config, record, run)
+
+    L.seed_everything(run.seed + start_step, workers=True, verbose=False)
+    module = RewardPredictorModule(config, normalizer=data.normalizer, data=record)
+    return fit_module(module, data, run, validate=len(data.val_episodes) > 0)
+
+
+def _episodes(datasets: Sequence[str | os.PathLike], split: str, record: dict[str, Any]) -> list[tuple[EpisodeStore, int]]:
+    """(store, episode) pairs of the split, numbered across the stores in order as training numbered them."""
+    stores = [EpisodeStore.open(p) for p in datasets]
+    pairs = [(s, i) for s in stores for i in range(s.n_episodes)]
+    if split == "all":
+        return pairs
+    if "val_ratio" not in record:
+        raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
+    _, chosen = split_episodes(len(pairs), float(record["val_ratio"]), int(record["seed"]))
+    if len(chosen) == 0:
+        raise DataError("the predictor was trained without held-out episodes; pass --split all with a separate store")
+    return [pairs[i] for i in chosen]
+
+
+def _summary(errors: dict[str, np.ndarray]) -> dict[str, Any]:
+    true, pred, err = errors["registration_true_px"], errors["registration_pred_px"], errors["registration_abs_err_px"]
+    ranks = [np.argsort(np.argsort(v)).astype(np.float64) for v in (true, pred)]
+    spearman = float(np.corrcoef(*ranks)[0, 1]) if len(true) > 1 and ranks[0].std() > 0 and ranks[1].std() > 0 else float("nan")
+    out: dict[str, Any] = {
+        "frames": int(len(true)),
+        "registration_mae_px": float(err.mean()), "registration_median_err_px": float(np.median(err)),
+        "registration_p90_err_px": float(np.percentile(err, 90)),
+        "constant_baseline_mae_px": float(np.abs(true - np.median(true)).mean()),
+        "spearman": spearman, "true_registration_mean_px": float(true.mean()),
+        "vertex_px": float(errors["vertex_px"].mean()), "position_px": float(errors["position_px"].mean()),
+        "angle_deg": float(errors["angle_deg"].mean()), "angle_median_deg": float(np.median(errors["angle_deg"])),
+    }
+    bins = []
+    for lo, hi in zip(BINS_PX[:-1], BINS_PX[1:]):
+        inside = (true >= lo) & (true < hi)
+        if inside.any():
+            bins.append({"true_px": [lo, hi], "frames": int(inside.sum()), "registration_mae_px": float(err[inside].mean()),
+                         "vertex_px": float(errors["vertex_px"][inside].mean())})
+    out["by_true_registration"] = bins
+    return out
+
+
+@torch.no_grad()
+def evaluate_reward_predictor(
+    module: RewardPredictorModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
+    stride: int = 1, goal: Sequence[float] | None = None, frame_size: int | None = None, batch_size: int = 256,
+) -> dict[str, Any]:
+    """Predicted vs true registration loss (px) and pose errors on held-out frames.
+
+    ``split="val"``: the validation episodes of the split the predictor was trained with (its
+    recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
+    store it never saw). ``episodes``: only the first N of them; ``stride``: every k-th frame.
+    ``goal``: the pose the registration loss is measured against (default: the predictor's).
+    ``frame_size``: first downscale the frames to this size (as a world model would produce them).
+    """
+    if split not in SPLITS:
+        raise ValueError(f"split {split!r}: use one of {', '.join(SPLITS)}")
+    if stride < 1:
+        raise ValueError(f"stride {stride}: must be at least 1")
+    c = module.config
+    c.check_task()
+    chosen = _episodes(datasets, split, module.data_record)[:episodes]
+    if not chosen:
+        raise DataError(f"{', '.join(map(str, datasets))}: no episodes to evaluate")
+    verts = torch.tensor(c.vertices, device=module.device)
+    goal_t = torch.tensor(c.goal if goal is None else tuple(goal), dtype=torch.float32, device=module.device)
+    parts: dict[str, list[np.ndarray]] = {}
+    for store, i in chosen:
+        sl = store.episode_slice(i)
+        frames = store.read(IMAGE_KEY, sl.start, sl.stop)[::stride]
+        states = store.read(STATE_KEY, sl.start, sl.stop)[::stride]
+        if frames.ndim != 4 or frames.shape[-1] != 3:
+            raise DataError(f"{store.path}: data/{IMAGE_KEY} rows are {frames.shape[1:]}, expected RGB frames (H, W, 3)")
+        frames = np.clip(np.rint(frames), 0, 255).astype(np.uint8)
+        for lo in range(0, len(frames), batch_size):
+            x = torch.from_numpy(frames[lo : lo + batch_size]).to(module.device).permute(0, 3, 1, 2).float() / 255.0
+            x = x if frame_size is None else resize(x, frame_size)
+            true = torch.from_numpy(np.asarray(states[lo : lo + batch_size], np.float32)).to(module.device)[:, list(c.pose_dims)]
+            for name, value in pose_errors(module.predictor(x), true, verts, goal_t).items():
+                parts.setdefault(name, []).append(value.double().cpu().numpy())
+    errors = {k: np.concatenate(v) for k, v in parts.items()}
+    return {"split": split, "datasets": [str(p) for p in datasets], "episodes": len(chosen), "stride": stride,
+            "goal": goal_t.tolist(), "frame_size": frame_size or int(frames.shape[1]), "input_size": c.input_size,
+            "config": c.to_dict(), **_summary(errors)}
+
+
+def markdown_report(reports: Sequence[dict[str, Any]], title: str = "Image reward") -> str:
+    """One row per evaluated data set, then the error by true-registration bin of each."""
+    lines = [
+        f"## {title}", "",
+        f"Frames {reports[0]['frame_size']} px, network input {reports[0]['input_size']} px. Registration loss "
+        "(mean vertex distance to the goal, px): predicted vs computed from the recorded state. "
+        "Constant baseline: always predicting the median true loss.", "",
+        "| data | split | episodes | frames | reg. MAE px | median | p90 | constant baseline MAE | Spearman | "
+        "vertex px | position px | angle deg (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in reports:
+        lines.append(
+            f"| {', '.join(Path(p).name for p in r['datasets'])} | {r['split']} | {r['episodes']} | {r['frames']} | "
+            f"{r['registration_mae_px']:.2f} | {r['registration_median_err_px']:.2f} | {r['registration_p90_err_px']:.2f} | "
+            f"{r['constant_baseline_mae_px']:.2f} | {r['spearman']:.3f} | {r['vertex_px']:.2f} | {r['position_px']:.2f} | "
+            f"{r['angle_deg']:.2f} ({r['angle_median_deg']:.2f}) |"
+        )
+    lines += ["", "By true registration loss (reg. MAE px / vertex px, frames):", "",
+              "| data | " + " | ".join(f"{lo:g}-{hi:g} px" for lo, hi in zip(BINS_PX[:-1], BINS_PX[1:])) + " |",
+              "|---|" + "---|" * (len(BINS_PX) - 1)]
+    for r in reports:
+        cells = {tuple(b["true_px"]): f"{b['registration_mae_px']:.2f} / {b['vertex_px']:.2f} ({b['frames']})"
+                 for b in r["by_true_registration"]}
+        row = [cells.get((lo, hi), "-") for lo, hi in zip(BINS_PX[:-1], BINS_PX[1:])]
+        lines.append(f"| {', '.join(Path(p).name for p in r['datasets'])} ({r['split']}) | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
