@@ -49,7 +49,7 @@ else ifeq ($(PROFILE),paper)
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
-  POLICY := --profile cpu
+  POLICY := --profile cpu --max-steps 3000
   WM1 := --profile cpu --max-steps 6000
   WM2 := --profile cpu --max-steps 2000
   EVAL := --seeds 100000:100100 --batch 25
