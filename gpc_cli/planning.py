@@ -44,17 +44,9 @@ def load_world_model(path: str, task: str) -> Any:
     """The ground-truth simulator for ``gt-sim``, else a world-model checkpoint of ``task`` (state or image)."""
     if path == GT_SIM:
         return get_task(task).SimulatorModel()
-    from models.checkpoint import read_checkpoint
-    from models.world_model import WorldModelModule
+    from models.planners import load_world_model as load
 
-    obs = read_checkpoint(path, "world_model", task=task)["gpc"].get("obs", "state")
-    if obs == "state":
-        return WorldModelModule.load_from_checkpoint(path, task=task)
-    try:
-        from models.visual_world_model import VisualWorldModelModule
-    except ImportError:
-        raise DataError(f"{path}: a world model for obs {obs!r}, which this gpc cannot load") from None
-    return VisualWorldModelModule.load_from_checkpoint(path, task=task)
+    return load(path, task)
 
 
 def build_reward(spec: RewardSpec, task: str) -> Any:

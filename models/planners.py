@@ -13,6 +13,7 @@ world model predicts the state after each of them, and the reward scores those f
 
 from __future__ import annotations
 
+import os
 import time
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Mapping, Sequence
@@ -206,8 +207,25 @@ class Planner:
         return best_chunk[:, None], best_score[:, None], best_future[:, None]
 
 
-def build_planner(config: PlannerConfig, world_model: WorldModel, reward: Reward | Callable[..., torch.Tensor],
-                  policy: ActionProposer | None = None, sampling: SamplingConfig = SamplingConfig(),
-                  **kwargs: Any) -> Planner:
-    """The deployment entry point: a controller with ``act(obs_history) -> chunk`` (see the README)."""
-    return Planner(config, world_model, reward, policy, sampling, **kwargs)
+def load_world_model(path: str | os.PathLike, task: str | None = None) -> Any:
+    """A world-model checkpoint of either kind (state MLP or visual EDM), from its record alone."""
+    from models.checkpoint import read_checkpoint
+    from models.world_model import WorldModelModule
+
+    obs = read_checkpoint(path, "world_model", task=task)["gpc"].get("obs", "state")
+    if obs == "state":
+        return WorldModelModule.load_from_checkpoint(path, task=task)
+    from models.visual_world_model import VisualWorldModelModule
+
+    return VisualWorldModelModule.load_from_checkpoint(path, task=task)
+
+
+def load_planner(policy: str | os.PathLike, world_model: str | os.PathLike, reward: Reward,
+                 config: PlannerConfig = PlannerConfig(), sampling: SamplingConfig = SamplingConfig()) -> Planner:
+    """Deployment on your own robot loop: checkpoints + a reward -> a controller with ``act(obs_history)``.
+
+    No simulator is involved; set ``config.action_low/high`` to your robot's action box.
+    """
+    from models.policy import PolicyModule
+
+    return Planner(config, load_world_model(world_model), reward, PolicyModule.load_from_checkpoint(policy), sampling)

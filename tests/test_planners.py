@@ -18,9 +18,10 @@ from gpc_cli.main import app
 from gpc_cli.planning import PlannerRecipe, RewardSpec, build_reward
 from models.controllers import PolicyController
 from models.planner_config import PLANNERS, PlannerConfig
-from models.planners import Objective, PartTimer, Planner
+from models.planners import Objective, PartTimer, Planner, load_planner
 from models.policy import PolicyModule
 from models.policy_config import policy_profile
+from models.reward import RegistrationReward
 from models.training import RunConfig, train_policy
 from models.world_model import WorldModelModule
 from models.world_model_config import world_model_profile
@@ -145,7 +146,9 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
 
 
 def test_deployment_api_acts_on_one_history(ckpts):
-    p = planner(ckpts, kind="rank-opt", num_proposals=3, opt_steps=2)
+    """The README's example: checkpoints + a reward -> ``act(obs_history)``, no simulator."""
+    reward = RegistrationReward(torch.as_tensor(REWARD_VERTICES), torch.tensor([256.0, 256.0, np.pi / 4]))
+    p = load_planner(ckpts["policy"], ckpts["wm"], reward, PlannerConfig(kind="rank-opt", num_proposals=3, opt_steps=2))
     obs = {k: v[0] for k, v in histories((100000,)).items()}
     chunk = p.act(obs, torch.Generator().manual_seed(0))
     again = p.act(obs, torch.Generator().manual_seed(0))
