@@ -27,6 +27,7 @@ VlmUrl = Annotated[Optional[str], typer.Option("--vlm-base-url", help="--reward 
 VlmModel = Annotated[Optional[str], typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[Optional[str], typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
 Steps = Annotated[Optional[int], typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+Spacing = Annotated[Optional[str], typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
 MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
 Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
@@ -35,14 +36,14 @@ Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads pe
 def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[str], k: Optional[int], m: Optional[int],
                         lr: float, reward: str, aggregate: str, reward_ckpt: Optional[str], vlm_url: Optional[str],
                         vlm_model: Optional[str], method: Optional[str], steps: Optional[int], keep_futures: bool = False,
-                        vlm_cache: Optional[Path] = None):
+                        vlm_cache: Optional[Path] = None, spacing: Optional[str] = None):
     """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
     from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
     from models.controllers import SamplingConfig
     from models.planner_config import PlannerConfig
     from models.policy import PolicyModule
 
-    sampling = SamplingConfig(method, steps)
+    sampling = SamplingConfig(method, steps, spacing)
     policy = PolicyModule.load_from_checkpoint(str(checkpoint))
     if planner == "bc":
         if world_model or k or m:
@@ -84,6 +85,7 @@ def eval_run(
     vlm_model: VlmModel = None,
     method: Method = None,
     steps: Steps = None,
+    spacing: Spacing = None,
     seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
     out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
     sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
@@ -103,7 +105,7 @@ def eval_run(
 
     recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
                                  reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=videos > 0,
-                                 vlm_cache=out / "vlm_cache")
+                                 vlm_cache=out / "vlm_cache", spacing=spacing)
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
     for s in samplings:
@@ -136,6 +138,7 @@ def plan_one(
     vlm_model: VlmModel = None,
     method: Method = None,
     steps: Steps = None,
+    spacing: Spacing = None,
     seed: int = typer.Option(100000, "--seed", min=0, help="Environment seed."),
     out: Path = typer.Option(Path("results/plan"), "--out", "-o", help="Directory for the MP4 and the episode's JSON."),
     goal: Goal = "fixed",
@@ -150,7 +153,7 @@ def plan_one(
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
     recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
                                  reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=True,
-                                 vlm_cache=out / "vlm_cache")
+                                 vlm_cache=out / "vlm_cache", spacing=spacing)
     config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
     result = evaluate(recipe, config)

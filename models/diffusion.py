@@ -12,8 +12,10 @@ reference values computed by hand. Coefficients are computed in float64.
 Notation: ``ab[t]`` is the cumulative product of ``1 - beta`` up to step ``t`` (diffusers'
 ``alphas_cumprod``); ``ab[-1] = 1``. Training noises ``x0`` to
 ``x_t = sqrt(ab[t]) x0 + sqrt(1 - ab[t]) eps`` and the network predicts ``eps``.
-A chain of ``S`` steps visits ``t = (S-1) r, ..., r, 0`` with ``r = N // S`` and steps
-from ``t`` to ``p = t - r``:
+A chain of ``S`` steps visits ``t = (S-1) r, ..., r, 0`` with ``r = N // S`` ("leading"
+spacing, diffusers' default and Diffusion Policy's) or ``t = N - 1, N - 1 - r, ..., r - 1``
+("trailing": the first step starts from pure noise, which few-step chains need) and steps
+from ``t`` to the next visited ``p`` (``-1`` after the last):
 
 - DDPM: ``x_p = c0 x0_hat + ct x_t + sigma z`` (posterior mean plus ``fixed_small`` noise, none at t = 0),
 - DDIM (eta 0): ``x_p = sqrt(ab[p]) x0_hat + sqrt(1 - ab[p]) eps_hat`` (deterministic),
@@ -31,6 +33,7 @@ import torch
 
 BETA_SCHEDULES = ("squaredcos_cap_v2",)
 SAMPLERS = ("ddpm", "ddim")
+SPACINGS = ("leading", "trailing")
 
 
 @dataclass(frozen=True)
@@ -59,10 +62,13 @@ class SamplerConfig:
 
     method: str = "ddim"  # ddim (deterministic, few steps; CPU default) or ddpm (stochastic full chain)
     steps: int = 10  # denoising steps; at most NoiseConfig.train_steps (ddpm normally uses all of them)
+    spacing: str = "leading"  # which training steps a short chain visits (see the module docstring)
 
     def __post_init__(self) -> None:
         if self.method not in SAMPLERS:
             raise ValueError(f"sampler {self.method!r}: use one of {', '.join(SAMPLERS)}")
+        if self.spacing not in SPACINGS:
+            raise ValueError(f"--spacing {self.spacing!r}: use one of {', '.join(SPACINGS)}")
         if self.steps < 1:
             raise ValueError(f"sampler steps {self.steps}: must be at least 1")
 
@@ -115,13 +121,17 @@ class DiffusionSampler:
         self.stride = schedule.train_steps // config.steps
 
     def timesteps(self) -> list[int]:
-        """Steps visited, first to last (diffusers' "leading" spacing, offset 0)."""
+        """Steps visited, first to last."""
+        if self.config.spacing == "trailing":
+            n, k = self.schedule.train_steps, self.config.steps
+            return [round(n - i * n / k) - 1 for i in range(k)]
         return [i * self.stride for i in range(self.config.steps)][::-1]
 
-    def step(self, x: torch.Tensor, eps: torch.Tensor, t: int, noise: DrawNoise | None) -> torch.Tensor:
-        """One update from ``x_t`` to ``x_{t - stride}``; ``noise`` is drawn only by DDPM at t > 0."""
+    def step(self, x: torch.Tensor, eps: torch.Tensor, t: int, noise: DrawNoise | None,
+             prev: int | None = None) -> torch.Tensor:
+        """One update from ``x_t`` to ``x_prev`` (default ``t - stride``); ``noise`` is drawn only by DDPM at t > 0."""
         s = self.schedule
-        prev = t - self.stride
+        prev = t - self.stride if prev is None else prev
         ab_t, ab_p = s.ab(t), s.ab(prev)
         x0 = s.predict_x0(x, eps, t)
         if self.config.method == "ddim":
@@ -129,13 +139,14 @@ class DiffusionSampler:
         alpha = ab_t / ab_p
         beta = 1.0 - alpha
         mean = (math.sqrt(ab_p) * beta / (1.0 - ab_t)) * x0 + (math.sqrt(alpha) * (1.0 - ab_p) / (1.0 - ab_t)) * x
-        if t == 0 or noise is None:
+        if prev < 0 or noise is None:
             return mean
         variance = max((1.0 - ab_p) / (1.0 - ab_t) * beta, 1e-20)
         return mean + math.sqrt(variance) * noise()
 
     def sample(self, denoise: Denoise, x: torch.Tensor, noise: DrawNoise) -> torch.Tensor:
         """Denoise initial noise ``x`` through the whole chain and return the final sample."""
-        for t in self.timesteps():
-            x = self.step(x, denoise(x, t), t, noise)
+        steps = self.timesteps()
+        for t, prev in zip(steps, steps[1:] + [-1]):
+            x = self.step(x, denoise(x, t), t, noise, prev)
         return x

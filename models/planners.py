@@ -121,8 +121,7 @@ class Planner:
         if cfg.uses_policy:
             with timer("policy"):
                 k = 1 if cfg.kind == "opt" else cfg.num_proposals
-                chunks = self.policy.sample_batch(obs, k, list(generators), method=self.sampling.method,
-                                                  steps=self.sampling.steps)[:, :, self.now :].float()
+                chunks = self.policy.sample_batch(obs, k, list(generators), **self.sampling.overrides)[:, :, self.now :].float()
             if cfg.kind != "rank":
                 chunks = self.ascend(objective, chunks, timer)
             scores, futures = objective(chunks)

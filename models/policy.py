@@ -171,18 +171,19 @@ class PolicyModule(L.LightningModule):
         *,
         method: str | None = None,
         steps: int | None = None,
+        spacing: str | None = None,
         use_ema: bool = True,
     ) -> torch.Tensor:
         """``{key: (B, T, ...)}`` raw observation histories -> ``(B, K, horizon, action_dim)`` raw actions.
 
         The last ``n_obs_steps`` of each history are used. ``generator``: one for the whole
         call, or one per history (then history b's proposals equal ``sample`` of it alone
-        with that generator). ``method`` / ``steps`` override the config's sampler.
+        with that generator). ``method`` / ``steps`` / ``spacing`` override the config's sampler.
         """
         cfg = self.config
         if num_samples < 1:
             raise ValueError(f"num_samples {num_samples}: must be at least 1")
-        sampler_cfg = SamplerConfig(method or cfg.sampler.method, steps or cfg.sampler.steps)
+        sampler_cfg = SamplerConfig(method or cfg.sampler.method, steps or cfg.sampler.steps, spacing or cfg.sampler.spacing)
         net = self.ema.model if use_ema else self.model
         sampler = DiffusionSampler(net.schedule, sampler_cfg)
         history = self._normalize_obs(obs)

@@ -55,6 +55,11 @@ def test_timesteps_use_leading_spacing():
     assert steps("ddim", 30)[:3] == [87, 84, 81] and steps("ddim", 30)[-1] == 0
     with pytest.raises(ValueError, match="exceed"):
         DiffusionSampler(SCHEDULE, SamplerConfig("ddim", 101))
+    # "trailing" starts at the last training step (pure noise), which few-step chains need
+    assert DiffusionSampler(SCHEDULE, SamplerConfig("ddim", 5, "trailing")).timesteps() == [99, 79, 59, 39, 19]
+    assert DiffusionSampler(SCHEDULE, SamplerConfig("ddpm", 100, "trailing")).timesteps() == list(range(99, -1, -1))
+    with pytest.raises(ValueError, match="--spacing 'middle'"):
+        SamplerConfig("ddim", 5, "middle")
 
 
 def test_ddpm_step_is_the_posterior_of_ho_et_al():
@@ -82,10 +87,11 @@ def test_ddim_step_and_clipping():
     assert big.item() == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("method,steps", [("ddim", 10), ("ddpm", 100), ("ddim", 1)])
-def test_an_oracle_denoiser_recovers_the_clean_sample(method, steps):
+@pytest.mark.parametrize("method,steps,spacing", [("ddim", 10, "leading"), ("ddpm", 100, "leading"), ("ddim", 1, "leading"),
+                                                  ("ddim", 5, "trailing"), ("ddpm", 10, "trailing")])
+def test_an_oracle_denoiser_recovers_the_clean_sample(method, steps, spacing):
     x0 = torch.tensor([[0.7, -0.4, 0.0, 0.95]])
-    sampler = DiffusionSampler(SCHEDULE, SamplerConfig(method, steps))
+    sampler = DiffusionSampler(SCHEDULE, SamplerConfig(method, steps, spacing))
 
     def oracle(x, t):  # the exact noise separating x from x0 at step t
         return (x - math.sqrt(SCHEDULE.ab(t)) * x0) / math.sqrt(1 - SCHEDULE.ab(t))
