@@ -8,7 +8,17 @@ STAMP := $(VENV)/.gpc-installed
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
-RESULTS ?= results/pusht-$(PROFILE)
+# EXPLORE=0: the paper's ablation, the world model trained on expert data only (own runs and results).
+EXPLORE ?= 1
+ifeq ($(EXPLORE),0)
+  WM_RUN := $(RUN_DIR)/wm-no-explore
+  WM_DATA := --dataset $(RUN_DIR)/expert.zarr
+  RESULTS ?= results/pusht-$(PROFILE)-no-explore
+else
+  WM_RUN := $(RUN_DIR)/wm
+  WM_DATA := --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
+  RESULTS ?= results/pusht-$(PROFILE)
+endif
 
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
 # PLANNERS: the controllers evaluated on the same seeds (result folder names); ARGS.NAME: their gpc eval options.
@@ -96,8 +106,8 @@ check-sim: $(STAMP)
 # Each stage is a file target: it runs when its output is missing or older than its inputs, and
 # collection and training resume from what an interrupted run left.
 POLICY_CKPT := $(RUN_DIR)/policy/checkpoints/last.ckpt
-WM_CKPT := $(RUN_DIR)/wm-phase2/checkpoints/last.ckpt
-TABLE := $(if $(filter cpu,$(PROFILE)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
+WM_CKPT := $(WM_RUN)-phase2/checkpoints/last.ckpt
+TABLE := $(if $(filter cpu1,$(PROFILE)$(EXPLORE)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
 
 $(RUN_DIR)/expert.done: | $(STAMP)
 	$(BIN)/gpc collect --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
@@ -115,17 +125,15 @@ $(RUN_DIR)/policy.done: $(RUN_DIR)/expert.done
 	  --out $(RUN_DIR)/policy $$resume
 	touch $@
 
-$(RUN_DIR)/wm-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
-	if [ -f $(RUN_DIR)/wm-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --phase 1 --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr \
-	  $(WM1) --seed 0 --out $(RUN_DIR)/wm-phase1 $$resume
+$(WM_RUN)-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(WM_RUN)-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --phase 1 $(WM_DATA) $(WM1) --seed 0 --out $(WM_RUN)-phase1 $$resume
 	touch $@
 
-$(RUN_DIR)/wm-phase2.done: $(RUN_DIR)/wm-phase1.done
+$(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 	if [ -f $(WM_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --phase 2 --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr \
-	  $(WM2) --seed 0 --out $(RUN_DIR)/wm-phase2 $$resume
-	$(BIN)/gpc eval world-model $(WM_CKPT) --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
+	$(BIN)/gpc train world-model --phase 2 $(WM_DATA) $(WM2) --seed 0 --out $(WM_RUN)-phase2 $$resume
+	$(BIN)/gpc eval world-model $(WM_CKPT) $(WM_DATA)
 	touch $@
 
 $(RESULTS)/bc/summary.json: $(RUN_DIR)/policy.done
@@ -133,7 +141,7 @@ $(RESULTS)/bc/summary.json: $(RUN_DIR)/policy.done
 
 # One eval per planner, each skipped once its summary is newer than the checkpoints it used.
 define planner_rule
-$(RESULTS)/$(1)/summary.json: $(RUN_DIR)/policy.done $(RUN_DIR)/wm-phase2.done
+$(RESULTS)/$(1)/summary.json: $(RUN_DIR)/policy.done $(WM_RUN)-phase2.done
 	$(BIN)/gpc eval $(POLICY_CKPT) $(ARGS.$(1)) $(if $(findstring gt-sim,$(1)),,--world-model $(WM_CKPT)) $(EVAL) --workers $(WORKERS) --out $(RESULTS)/$(1)
 endef
 $(foreach n,$(PLANNERS) $(CEILING),$(eval $(call planner_rule,$(n))))
