@@ -79,7 +79,7 @@ class Planner:
 
     def __init__(self, config: PlannerConfig, world_model: WorldModel, reward: Reward,
                  policy: ActionProposer | None = None, sampling: SamplingConfig = SamplingConfig(),
-                 horizon: int | None = None, n_action_steps: int | None = None) -> None:
+                 horizon: int | None = None, n_action_steps: int | None = None, action_dim: int | None = None) -> None:
         if config.uses_policy and policy is None:
             raise ValueError(f"planner {config.kind} needs a policy checkpoint")
         if config.uses_gradients and getattr(reward, "selects", False):
@@ -93,14 +93,14 @@ class Planner:
             self.n_action_steps = pc.n_action_steps
             self.obs_keys = tuple(dict.fromkeys(policy.obs_keys + (self.wm_key,)))
             self.n_obs_steps = max(pc.n_obs_steps, world_model.n_obs_steps)
+            self.action_dim = pc.action_dim
         else:
-            if horizon is None or n_action_steps is None:
-                raise ValueError("a planner without a policy needs horizon and n_action_steps")
-            self.now, self.horizon, self.n_action_steps = 0, horizon, n_action_steps
+            if horizon is None or n_action_steps is None or action_dim is None:
+                raise ValueError("a planner without a policy needs horizon, n_action_steps and action_dim")
+            self.now, self.horizon, self.n_action_steps, self.action_dim = 0, horizon, n_action_steps, action_dim
             self.obs_keys, self.n_obs_steps = (self.wm_key,), world_model.n_obs_steps
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"n_action_steps {self.n_action_steps} must lie in 1..{self.horizon}")
-        self.action_dim = policy.config.action_dim if policy is not None else 2
         self.episodes: Sequence[int] | None = None
 
     def start(self, episodes: Sequence[int]) -> None:
