@@ -70,9 +70,9 @@ class CollectSummary:
     skipped: int
     episodes: int
     steps: int
-    mean_score: float
-    success_rate: float
-    contact_fraction: float
+    mean_score: float | None  # over the episodes written by this call (None when it wrote none)
+    success_rate: float | None
+    contact_fraction: float | None
 
 
 def _run_one(args: tuple[str, str, int, str, bool, int]) -> tuple[dict[str, np.ndarray], dict]:
@@ -129,10 +129,10 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
     return CollectSummary(
         path=str(job.out), written=len(stats), skipped=len(job.seeds) - len(todo),
         episodes=store.n_episodes, steps=store.n_steps,
-        mean_score=float(scores.mean()) if stats else float("nan"),
-        success_rate=float(np.mean([s["success"] for s in stats])) if stats else float("nan"),
+        mean_score=float(scores.mean()) if stats else None,
+        success_rate=float(np.mean([s["success"] for s in stats])) if stats else None,
         contact_fraction=float(np.average([s["contact_fraction"] for s in stats],
-                                          weights=[s["steps"] for s in stats])) if stats else float("nan"),
+                                          weights=[s["steps"] for s in stats])) if stats else None,
     )
 
 

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from datasets.store import EpisodeStore
@@ -53,8 +54,8 @@ def test_rerun_resumes_without_duplicates(tmp_path):
     assert summary["written"] == 2 and summary["skipped"] == 2
     np.testing.assert_array_equal(EpisodeStore.open(out).episode_seeds(), [0, 1, 2, 3])
     rerun = _collect(out, "--episodes", "4").output
-    again = json.loads(rerun[rerun.index("{"):])
-    assert again["written"] == 0
+    again = json.loads(rerun[rerun.index("{"):], parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+    assert again["written"] == 0 and again["mean_score"] is None  # strict JSON: no NaN when nothing was written
 
 
 def test_refuses_a_store_of_another_kind_unless_overwrite(tmp_path):
