@@ -8,6 +8,7 @@ STAMP := $(VENV)/.gpc-installed
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
+# SEEDS=START:STOP overrides the profile's test seeds (cpu: 100000:100100).
 # EXPLORE=0: the paper's ablation, the world model trained on expert data only (own runs and results).
 EXPLORE ?= 1
 ifeq ($(EXPLORE),0)
@@ -62,7 +63,7 @@ else ifeq ($(PROFILE),cpu)
   POLICY := --profile cpu --max-steps 3000
   WM1 := --profile cpu --max-steps 6000
   WM2 := --profile cpu --max-steps 2000
-  EVAL := --seeds 100000:100100 --batch 25
+  EVAL := --seeds $(or $(SEEDS),100000:100100) --batch 25
   PLANNERS := rank-K10 rank-K100 opt-M30 rank-opt-10x30 cem-100x5 mppi-100x5 grad-10x30
   ARGS.rank-K10 := --planner rank -K 10
   ARGS.rank-K100 := --planner rank -K 100
@@ -149,7 +150,7 @@ $(foreach n,$(PLANNERS) $(CEILING),$(eval $(call planner_rule,$(n))))
 $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
 	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
 	  --ceiling $(RESULTS)/$(CEILING) --paper pusht-state --out $@ \
-	  --title "State Push-T, PROFILE=$(PROFILE): planners against BC (policy trained on expert data)"
+	  --title "State Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data)"
 
 reproduce-pusht: $(TABLE)
 	@cat $(TABLE)
