@@ -10,6 +10,12 @@ Split as DIAMOND splits its diffusion stack:
   loss), ``policy`` (``PolicyModule``: batch in, loss and logs out; ``sample`` /
   ``sample_batch`` out), ``checkpoint`` (kind/task records, clear load errors),
   ``training`` (``train_policy``: one run with best/last checkpoints and resume);
+- world models: ``world_model_config`` (state and visual configs, profiles), ``world_model``
+  (``StateDynamics`` MLP and ``WorldModelModule``, which trains and checkpoints either kind),
+  ``visual_world_model`` (``VisualDynamics``: frames in, frames out), ``edm`` (EDM
+  preconditioned ``Denoiser`` and ``EulerSampler``, frozen or sampled noise), ``unet2d``
+  (AdaGroupNorm U-Net), ``world_model_training``, ``world_model_eval`` /
+  ``visual_world_model_eval`` (per-step errors against the nothing-moves baseline);
 - ``protocols``: the interfaces planners use.
 
 Submodules are imported explicitly (``from models.policy import PolicyModule``) so that

@@ -1,10 +1,12 @@
-"""The state world model: an MLP single-step predictor, its batched differentiable rollout, and its LightningModule.
+"""World models: the state MLP single-step predictor, its batched differentiable rollout, and the
+LightningModule that trains and checkpoints any world model.
 
 ``StateDynamics`` (normaliser + MLP) is the part a planner needs: ``rollout`` maps raw state
 histories and raw action chunks to raw predicted states, in one batched call that
-gradients flow through. ``WorldModelModule`` wraps it for training (batch in, loss and
-logs out) and checkpoints (``kind="world_model"``, task, obs, phase);
-``WorldModelModule.load_from_checkpoint(path)`` alone rebuilds it, normaliser included.
+gradients flow through. ``WorldModelModule`` wraps it, or the visual model's
+``VisualDynamics`` (``models.visual_world_model``, chosen by ``config.obs_type``), for
+training (batch in, loss and logs out) and checkpoints (``kind="world_model"``, task, obs,
+phase); ``WorldModelModule.load_from_checkpoint(path)`` alone rebuilds it, normaliser included.
 
 Inputs and outputs of the predictor (``D`` state entries, ``A`` action entries):
 
@@ -33,7 +35,8 @@ from models.checkpoint import checkpoint_meta, read_checkpoint
 from models.mlp import MLP
 from models.policy import cosine_with_warmup
 from models.protocols import WorldModel  # noqa: F401  (re-exported: the interface this module implements)
-from models.world_model_config import KIND, DynamicsConfig, WorldModelConfig
+from models.visual_world_model import VisualDynamics
+from models.world_model_config import KIND, AnyWorldModelConfig, DynamicsConfig, VisualWorldModelConfig, WorldModelConfig, config_from_dict
 
 STATE_KEY, ACTION_KEY, DELTA_KEY = "state", "action", "state_delta"
 TWO_PI = 2.0 * math.pi
@@ -145,6 +148,18 @@ class StateDynamics(nn.Module):
         states = self.unroll(history[:, -c.history :], actions)
         return torch.where(self.angle_mask, torch.remainder(states, TWO_PI), states)
 
+    @property
+    def n_obs_steps(self) -> int:
+        return self.config.history
+
+    # ------------------------------------------------------------------ loss
+    def window_loss(self, batch: Mapping[str, torch.Tensor], config: WorldModelConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """A training batch ``{state: (B, H + T, D), action: (B, H + T, A)}`` -> loss, logs (see ``loss``)."""
+        h, t = self.config.history, config.horizon
+        states = batch[STATE_KEY].float()
+        actions = batch[ACTION_KEY].float()[:, h - 1 : h - 1 + t]
+        return self.loss(states, actions, config.unroll_steps, config.loss_scale, config.detach_feedback)
+
     # ------------------------------------------------------------------ loss
     def loss(self, states: torch.Tensor, actions: torch.Tensor, unroll: int, units: str = "delta",
              detach_feedback: bool = False) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -171,30 +186,32 @@ class StateDynamics(nn.Module):
 
 
 class WorldModelModule(L.LightningModule):
-    """The state world model for one task: batch in, loss and logs out; ``rollout`` for planners."""
+    """A world model (state or image) for one task: batch in, loss and logs out; ``rollout`` for planners."""
 
-    def __init__(self, config: WorldModelConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
+    def __init__(self, config: AnyWorldModelConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
                  data: Mapping[str, Any] | None = None) -> None:
         super().__init__()
-        self.config = WorldModelConfig.from_dict(config)
+        self.config = config_from_dict(config)
         # ``data``: where the weights came from (stores, split seed and ratio, init checkpoint), for evaluation.
         self.save_hyperparameters({"config": self.config.to_dict(), "data": dict(data or {})})
-        self.dynamics = StateDynamics(self.config.dynamics, normalizer)
+        visual = isinstance(self.config, VisualWorldModelConfig)
+        self.dynamics: StateDynamics | VisualDynamics = (VisualDynamics if visual else StateDynamics)(self.config.dynamics, normalizer)
         self.diverged_at: int | None = None  # global step of a non-finite loss; training stops there
 
     @property
     def n_obs_steps(self) -> int:
-        return self.config.dynamics.history
+        return self.dynamics.n_obs_steps
 
     @property
     def data_record(self) -> dict[str, Any]:
         return dict(self.hparams.get("data", {}))
 
-    def rollout(self, history: torch.Tensor | np.ndarray, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
-        """See ``WorldModel.rollout``; arrays are moved to the module's device as float32."""
+    def rollout(self, history: torch.Tensor | np.ndarray, actions: torch.Tensor | np.ndarray, **options: Any) -> torch.Tensor:
+        """See ``WorldModel.rollout`` and the dynamics' ``rollout`` (the visual one takes ``noise`` and
+        ``generator``); arrays are moved to the module's device as float32."""
         history = torch.as_tensor(history, dtype=torch.float32, device=self.device)
         actions = torch.as_tensor(actions, dtype=torch.float32, device=self.device)
-        return self.dynamics.rollout(history, actions)
+        return self.dynamics.rollout(history, actions, **options)
 
     # ------------------------------------------------------------------ checkpoints
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
@@ -221,11 +238,7 @@ class WorldModelModule(L.LightningModule):
 
     # ------------------------------------------------------------------ training
     def _loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        h, t = self.config.dynamics.history, self.config.horizon
-        states = batch[STATE_KEY].float()
-        actions = batch[ACTION_KEY].float()[:, h - 1 : h - 1 + t]
-        c = self.config
-        return self.dynamics.loss(states, actions, c.unroll_steps, c.loss_scale, c.detach_feedback)
+        return self.dynamics.window_loss(batch, self.config)  # type: ignore[arg-type]
 
     def on_fit_start(self) -> None:
         self.dynamics.check_normalizer()
@@ -237,12 +250,12 @@ class WorldModelModule(L.LightningModule):
             self.diverged_at = self.global_step  # skip this update and stop; the caller reports it
             self.trainer.should_stop = True
             return None
-        self.log_dict({f"train/{k}": v for k, v in logs.items()}, prog_bar=True, batch_size=batch[STATE_KEY].shape[0])
+        self.log_dict({f"train/{k}": v for k, v in logs.items()}, prog_bar=True, batch_size=batch[ACTION_KEY].shape[0])
         return loss
 
     def validation_step(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss, logs = self._loss(batch)
-        n = batch[STATE_KEY].shape[0]
+        n = batch[ACTION_KEY].shape[0]
         self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=n)
         self.log("val/loss_last_step", logs["loss_last_step"], sync_dist=True, batch_size=n)
         return loss

@@ -1,21 +1,36 @@
-"""The state world model's config (the network it is, how it learns) and its named profiles.
+"""World-model configs (the network each is, how it learns) and their named profiles.
+
+Two kinds share one training recipe (``_TrainingConfig``) and one checkpoint kind
+(``world_model``), told apart by ``obs_type``:
+
+- ``WorldModelConfig`` (``obs_type="state"``): an MLP single-step state predictor
+  (``DynamicsConfig``);
+- ``VisualWorldModelConfig`` (``obs_type="image"``): an EDM single-step frame predictor
+  (``VisualDynamicsConfig``: U-Net, EDM process, Euler sampler, resolution, frameskip).
+
+``config_from_dict`` rebuilds either from a checkpoint's plain dict.
 
 Two-phase training is one implementation with two settings of ``unroll``:
 
-- phase 1 (``unroll = 1``): every window supplies ``horizon`` one-step predictions, each from
-  the true history (teacher forcing);
-- phase 2 (``unroll = horizon`` by default): the predictor is applied recursively from the
-  window's true history over ``unroll`` actions and every predicted state is supervised.
-  Phase 2 starts from phase-1 weights and keeps phase 1's network and normaliser.
+- phase 1 (``unroll = 1``): every window supplies its predictions one step at a time, each
+  from the true history (teacher forcing);
+- phase 2 (``unroll`` = all predicted steps by default): the predictor is applied recursively
+  from the window's true history and every prediction is supervised. Phase 2 starts from
+  phase-1 weights and keeps phase 1's network and normaliser.
 
-Phase 1 measures errors in one-step-delta standard deviations, phase 2 in state ranges
+State: phase 1 measures errors in one-step-delta standard deviations, phase 2 in state ranges
 (``loss_units``): on the human Push-T data, delta units in phase 2 let the agent's
 rollout error grow from 0.6 to 5 px while the block improved, state units held it near 1.5 px.
 
-Timeline of one training window (history H = 2, horizon T = 4), index 0 = oldest state::
+Timeline of one state training window (history H = 2, horizon T = 4), index 0 = oldest state::
 
     states   | s0 s1 | s2 s3 s4 s5 |      s0, s1: history; s2..s5: supervised futures
     actions  |    a1 | a2 a3 a4    |      a_i moves s_i to s_{i+1} (Diffusion Policy's layout)
+
+A visual window (H = 2 frames, frameskip 2, T = 4 actions) reads every ``frameskip``-th frame::
+
+    frames   | o0 .  o2 | .  o4 .  o6 |   o0, o2: context; o4, o6: supervised predictions
+    actions  |       a2 | a3 a4 a5    |   o4 follows (a2, a3), o6 follows (a4, a5)
 """
 
 from __future__ import annotations
@@ -23,14 +38,20 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from typing import Any, Mapping
+
 from models.config_io import PlainConfig
+from models.edm import EDMConfig, EulerConfig
 from models.mlp import ACTIVATIONS
 from models.policy_config import OptimConfig
+from models.unet2d import UNet2DConfig
 
 KIND = "world_model"
-OBS_TYPES = ("state",)
-PROFILES = ("cpu", "tiny")
+OBS_TYPES = ("state", "image")
+PROFILES = ("cpu", "tiny", "paper")
 LOSS_UNITS = ("delta", "state")
+FEEDBACK = ("denoised", "sampled")
+IMAGE_KEY = "img"
 
 
 @dataclass(frozen=True)
@@ -80,24 +101,74 @@ class DynamicsConfig:
 
 
 @dataclass(frozen=True)
-class WorldModelConfig(PlainConfig):
-    """A state world model: the single-step predictor, its training windows and its phase."""
+class VisualDynamicsConfig:
+    """The visual single-step predictor: frame size, context, action conditioning and its diffusion stack.
+
+    Frames are RGB ``resolution`` px squares scaled to [-1, 1]. A prediction reads ``history``
+    frames spaced ``frameskip`` steps apart (the last is the current frame) and the
+    ``frameskip`` actions that follow it, and predicts the frame ``frameskip`` steps later.
+    """
+
+    resolution: int = 48  # S: the model's frame size (stores are resized to it)
+    history: int = 4  # H: context frames per prediction
+    frameskip: int = 4  # actions consumed per predicted frame (and the spacing of context frames)
+    action_dim: int = 2  # entries of one action
+    img_channels: int = 3  # colour channels
+    unet: UNet2DConfig = field(default_factory=UNet2DConfig)  # the inner network
+    edm: EDMConfig = field(default_factory=EDMConfig)  # the training noise process
+    sampler: EulerConfig = field(default_factory=EulerConfig)  # inference: Euler steps, frozen or sampled noise
+    action_maps: bool = True  # also draw each action of the step as a Gaussian blob channel beside the context
+    action_extent: tuple[float, float] = (0.0, 512.0)  # action coordinates at the frame's first and last pixel edge
+    action_map_sigma: float = 15.0  # blob standard deviation, in action units (Push-T: the agent's radius)
+    motion_weight: float = 0.0  # training: pixels weigh 1 + this x their change since the previous frame (mean |diff| in [-1, 1] units)
+    source_size: int | None = None  # frame size of the training stores (filled from the data; others are resized with a warning)
+    bf16: bool = False  # run rollouts under bfloat16 autocast (about 1.5x faster 2-D convolutions on CPU)
+
+    def __post_init__(self) -> None:
+        for name in ("resolution", "history", "frameskip", "action_dim", "img_channels"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
+        if self.resolution < self.unet.downsampling:
+            raise ValueError(f"resolution {self.resolution} is smaller than the U-Net's downsampling {self.unet.downsampling}")
+        lo, hi = self.action_extent
+        if not hi > lo or self.action_map_sigma <= 0:
+            raise ValueError(f"action_extent {self.action_extent} must increase and action_map_sigma be > 0")
+        if self.motion_weight < 0:
+            raise ValueError(f"motion_weight {self.motion_weight}: must be >= 0")
+        if self.source_size is not None and self.source_size < 1:
+            raise ValueError(f"source_size {self.source_size}: must be at least 1")
+
+    @property
+    def n_obs_steps(self) -> int:
+        """Observation steps a rollout reads: H frames spaced ``frameskip`` apart."""
+        return (self.history - 1) * self.frameskip + 1
+
+    @property
+    def context_channels(self) -> int:
+        """Channels beside the noisy frame: the H context frames and, with ``action_maps``, one map per action."""
+        return self.history * self.img_channels + (self.frameskip if self.action_maps else 0)
+
+    @property
+    def cond_dim(self) -> int:
+        """Entries of the action conditioning vector: the step's ``frameskip`` normalised actions."""
+        return self.frameskip * self.action_dim
+
+
+@dataclass(frozen=True)
+class _TrainingConfig(PlainConfig):
+    """What every world model shares: its task, training windows and phase, and the optimiser."""
 
     task: str = "pusht"  # task the model is trained for; checked when a checkpoint is loaded
-    obs_type: str = "state"  # observations predicted (the visual world model comes later)
-    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)  # the network
-    horizon: int = 16  # T: actions (and supervised future states) per training window
+    horizon: int = 16  # T: actions per training window
     phase: int = 1  # 1: one-step loss; 2: unrolled loss from phase-1 weights
-    unroll: int | None = None  # predicted steps per unrolled segment (default: 1 in phase 1, horizon in phase 2)
-    detach_feedback: bool = False  # phase 2: stop gradients through the fed-back predictions
-    loss_units: str | None = None  # error scale per state entry: delta (one-step delta std) or state (data range); default by phase
+    unroll: int | None = None  # predictions per unrolled segment (default: 1 in phase 1, all of the window's in phase 2)
     optim: OptimConfig = field(default_factory=lambda: OptimConfig(lr=1e-3, betas=(0.9, 0.999), warmup_steps=200))
 
     def __post_init__(self) -> None:
         if not self.task:
             raise ValueError("task must be named")
-        if self.obs_type not in OBS_TYPES:
-            raise ValueError(f"world model obs {self.obs_type!r}: use one of {', '.join(OBS_TYPES)}")
+        if getattr(self, "obs_type", None) not in OBS_TYPES:
+            raise ValueError(f"world model obs {getattr(self, 'obs_type', None)!r}: use one of {', '.join(OBS_TYPES)}")
         if self.horizon < 1:
             raise ValueError(f"horizon {self.horizon}: must be at least 1")
         if self.phase not in (1, 2):
@@ -106,16 +177,54 @@ class WorldModelConfig(PlainConfig):
             raise ValueError(f"phase 1 supervises single steps; unroll {self.unroll} needs phase 2")
         if self.phase == 2 and self.unroll is not None and self.unroll < 2:
             raise ValueError(f"phase 2 unroll {self.unroll}: must be at least 2 (unroll 1 is phase 1)")
-        if self.loss_units not in (None,) + LOSS_UNITS:
-            raise ValueError(f"loss_units {self.loss_units!r}: use one of {', '.join(LOSS_UNITS)}")
-        if self.horizon % self.unroll_steps:
-            raise ValueError(f"unroll {self.unroll_steps} must divide the horizon {self.horizon}")
+        if self.predicted_steps % self.unroll_steps:
+            raise ValueError(f"unroll {self.unroll_steps} must divide the {self.predicted_steps} predictions per window")
+
+    @property
+    def predicted_steps(self) -> int:
+        """Predictions per training window."""
+        return self.horizon
+
+    @property
+    def n_obs_steps(self) -> int:
+        """Observation steps before the window's first action (the history a rollout reads)."""
+        raise NotImplementedError
 
     @property
     def unroll_steps(self) -> int:
         if self.unroll is not None:
             return self.unroll
-        return 1 if self.phase == 1 else self.horizon
+        return 1 if self.phase == 1 else self.predicted_steps
+
+    @property
+    def window(self) -> int:
+        """Steps per training window: the history and T futures."""
+        return self.n_obs_steps + self.horizon
+
+
+@dataclass(frozen=True)
+class WorldModelConfig(_TrainingConfig):
+    """A state world model: the single-step MLP predictor, its training windows and its phase."""
+
+    obs_type: str = "state"  # observations predicted
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)  # the network
+    detach_feedback: bool = False  # phase 2: stop gradients through the fed-back predictions
+    loss_units: str | None = None  # error scale per state entry: delta (one-step delta std) or state (data range); default by phase
+
+    def __post_init__(self) -> None:
+        if self.obs_type != "state":
+            raise ValueError(f"WorldModelConfig predicts states, not {self.obs_type!r} (see VisualWorldModelConfig)")
+        super().__post_init__()
+        if self.loss_units not in (None,) + LOSS_UNITS:
+            raise ValueError(f"loss_units {self.loss_units!r}: use one of {', '.join(LOSS_UNITS)}")
+
+    @property
+    def n_obs_steps(self) -> int:
+        return self.dynamics.history
+
+    @property
+    def obs_key(self) -> str:
+        return "state"
 
     @property
     def loss_scale(self) -> str:
@@ -126,23 +235,78 @@ class WorldModelConfig(PlainConfig):
             return self.loss_units
         return "delta" if self.phase == 1 else "state"
 
+
+@dataclass(frozen=True)
+class VisualWorldModelConfig(_TrainingConfig):
+    """A visual world model: the EDM frame predictor applied every ``frameskip`` actions.
+
+    Phase 1 denoises each of the window's ``horizon / frameskip`` frames from the true
+    context; phase 2 unrolls: each step's context holds the previous steps' ``feedback``
+    frames (detached), ``denoised`` being the one-step estimate at the training noise level
+    (the official GPC code), ``sampled`` the sampler's frame (what a rollout feeds back).
+    """
+
+    obs_type: str = "image"  # observations predicted
+    dynamics: VisualDynamicsConfig = field(default_factory=VisualDynamicsConfig)  # the network
+    feedback: str = "denoised"  # phase 2: frame fed back as context (denoised or sampled)
+    optim: OptimConfig = field(default_factory=lambda: OptimConfig(lr=3e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=200))
+
+    def __post_init__(self) -> None:
+        if self.obs_type != "image":
+            raise ValueError(f"VisualWorldModelConfig predicts images, not {self.obs_type!r}")
+        if self.horizon % self.dynamics.frameskip:
+            raise ValueError(f"horizon {self.horizon} must be a multiple of frameskip {self.dynamics.frameskip}")
+        if self.feedback not in FEEDBACK:
+            raise ValueError(f"feedback {self.feedback!r}: use one of {', '.join(FEEDBACK)}")
+        super().__post_init__()
+
     @property
-    def window(self) -> int:
-        """States per training window: H history states and T futures."""
-        return self.dynamics.history + self.horizon
+    def predicted_steps(self) -> int:
+        return self.horizon // self.dynamics.frameskip
+
+    @property
+    def n_obs_steps(self) -> int:
+        return self.dynamics.n_obs_steps
+
+    @property
+    def obs_key(self) -> str:
+        return IMAGE_KEY
+
+
+AnyWorldModelConfig = WorldModelConfig | VisualWorldModelConfig
+
+
+def config_from_dict(data: Mapping[str, Any] | AnyWorldModelConfig) -> AnyWorldModelConfig:
+    """A state or visual world-model config from its plain dict (``obs_type`` decides), or as given."""
+    if isinstance(data, (WorldModelConfig, VisualWorldModelConfig)):
+        return data
+    if not isinstance(data, Mapping):
+        raise ValueError(f"world model config: expected a mapping, got {type(data).__name__}")
+    cls = VisualWorldModelConfig if data.get("obs_type") == "image" else WorldModelConfig
+    return cls.from_dict(data)
 
 
 @dataclass(frozen=True)
 class WorldModelProfile:
     """A named size: the config plus the batch size and step budget it is meant for."""
 
-    config: WorldModelConfig
+    config: AnyWorldModelConfig
     batch_size: int
     max_steps: int
 
 
-def world_model_profile(name: str, phase: int = 1, task: str = "pusht") -> WorldModelProfile:
-    """``cpu``: 256x4 MLP, T = 16, trains on 2 cores; ``tiny``: seconds-long runs for tests."""
+def world_model_profile(name: str, phase: int = 1, task: str = "pusht", obs: str = "state") -> WorldModelProfile:
+    """Named sizes per observation type.
+
+    State: ``cpu`` (256x4 MLP, T = 16, trains on 2 cores), ``tiny`` (seconds-long test runs).
+    Image: ``cpu`` (48 px, U-Net (16, 32, 64), frameskip 4: a 16-action chunk is 4 predictions,
+    0.9M parameters, bf16 rollouts; train it with ``--precision bf16-mixed``), ``tiny`` (16 px, tests), ``paper`` (96 px, U-Net 4 x 96 with two blocks
+    per level and middle attention, conditioning 256, frameskip 1: the paper's model, GPU only).
+    """
+    if obs not in OBS_TYPES:
+        raise ValueError(f"world model obs {obs!r}: use one of {', '.join(OBS_TYPES)}")
+    if obs == "image":
+        return _visual_profile(name, phase, task)
     if name == "cpu":
         dynamics, horizon, batch = DynamicsConfig(width=256, depth=4), 16, 256
         steps = 6000 if phase == 1 else 2000
@@ -151,12 +315,35 @@ def world_model_profile(name: str, phase: int = 1, task: str = "pusht") -> World
         dynamics, horizon, batch, steps = DynamicsConfig(width=32, depth=2), 8, 32, 30
         optim = OptimConfig(lr=3e-3, betas=(0.9, 0.999), warmup_steps=2)
     else:
-        raise ValueError(f"profile {name!r}: use one of {', '.join(PROFILES)}")
+        raise ValueError(f"state world model profile {name!r}: use cpu or tiny")
     config = WorldModelConfig(task=task, dynamics=dynamics, horizon=horizon, phase=phase, optim=optim)
     return WorldModelProfile(config, batch, steps)
 
 
-def with_network_of(config: WorldModelConfig, source: WorldModelConfig) -> WorldModelConfig:
+def _visual_profile(name: str, phase: int, task: str) -> WorldModelProfile:
+    one = phase == 1
+    if name == "cpu":
+        unet = UNet2DConfig(channels=(16, 32, 64), depths=(1, 1, 1), cond_channels=128)
+        dynamics = VisualDynamicsConfig(resolution=48, history=4, frameskip=4, unet=unet, motion_weight=8.0, bf16=True)
+        horizon, batch, steps = 16, 8, 5000 if one else 1000  # batch 8 windows = 32 predictions per step
+        optim = OptimConfig(lr=5e-4 if one else 2e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=200 if one else 20)
+    elif name == "tiny":
+        unet = UNet2DConfig(channels=(8, 8), depths=(1, 1), cond_channels=16, group_size=8)
+        dynamics = VisualDynamicsConfig(resolution=16, history=2, frameskip=2, unet=unet, motion_weight=4.0)
+        horizon, batch, steps = 4, 8, 30
+        optim = OptimConfig(lr=3e-3, betas=(0.9, 0.999), weight_decay=0.0, warmup_steps=2)
+    elif name == "paper":
+        unet = UNet2DConfig(channels=(96, 96, 96, 96), depths=(2, 2, 2, 2), cond_channels=256, mid_attention=True)
+        dynamics = VisualDynamicsConfig(resolution=96, history=4, frameskip=1, unet=unet, action_maps=False)
+        horizon, batch, steps = 16, 32, 100_000 if one else 20_000
+        optim = OptimConfig(lr=1e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=100)
+    else:
+        raise ValueError(f"visual world model profile {name!r}: use one of {', '.join(PROFILES)}")
+    config = VisualWorldModelConfig(task=task, dynamics=dynamics, horizon=horizon, phase=phase, optim=optim)
+    return WorldModelProfile(config, batch, steps)
+
+
+def with_network_of(config: AnyWorldModelConfig, source: AnyWorldModelConfig) -> AnyWorldModelConfig:
     """``config``'s training settings on ``source``'s network (phase 2 keeps phase 1's network)."""
     if source.task != config.task or source.obs_type != config.obs_type:
         raise ValueError(

@@ -51,22 +51,23 @@ def _errors(pred: torch.Tensor, true: torch.Tensor, layout: PoseLayout, vertices
     return out
 
 
-@torch.no_grad()
-def evaluate_rollouts(
-    module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
-    horizon: int | None = None, layout: PoseLayout = PoseLayout(), vertices: torch.Tensor | np.ndarray | None = None,
-    batch_size: int = 4096,
-) -> dict[str, Any]:
-    """Per-step mean errors of the model and of the "nothing moves" baseline on held-out windows.
+def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
+                     episodes: int | None = None, horizon: int | None = None, stride: int = 1,
+                     max_windows: int | None = None) -> tuple[Any, np.ndarray, np.ndarray, int]:
+    """The evaluation windows: (arrays, chosen episodes, ``(N, n_obs + T)`` step indices, T).
 
     ``split="val"``: the validation episodes of the split the model was trained with (its
     recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
-    store the model never saw). ``episodes``: only the first N of them.
+    store the model never saw). ``episodes``: only the first N of them. Windows start every
+    ``stride`` steps (histories padded at episode starts, futures never); ``max_windows``:
+    only that many, evenly spread.
     """
     if split not in SPLITS:
         raise ValueError(f"split {split!r}: use one of {', '.join(SPLITS)}")
+    if stride < 1:
+        raise ValueError(f"stride {stride}: must be at least 1")
     h, t = module.n_obs_steps, horizon or module.config.horizon
-    arrays = load_stores([str(p) for p in datasets], (STATE_KEY, ACTION_KEY))
+    arrays = load_stores([str(p) for p in datasets], tuple(keys))
     if split == "val":
         record = module.data_record
         if "val_ratio" not in record:
@@ -78,9 +79,23 @@ def evaluate_rollouts(
         chosen = np.arange(arrays.n_episodes)
     if episodes is not None:
         chosen = chosen[:episodes]
-    spec = WindowSpec(h + t, h - 1, 0)
-    rows = window_starts(arrays.episode_ends, chosen, spec)
+    rows = window_starts(arrays.episode_ends, chosen, WindowSpec(h + t, h - 1, 0))[::stride]
+    if max_windows is not None and len(rows) > max_windows:
+        rows = rows[np.linspace(0, len(rows) - 1, max_windows).round().astype(int)]
     idx = np.stack([window_indices(r, h + t) for r in rows])
+    return arrays, chosen, idx, t
+
+
+@torch.no_grad()
+def evaluate_rollouts(
+    module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
+    horizon: int | None = None, layout: PoseLayout = PoseLayout(), vertices: torch.Tensor | np.ndarray | None = None,
+    batch_size: int = 4096, stride: int = 1,
+) -> dict[str, Any]:
+    """Per-step mean errors of the state model and of the "nothing moves" baseline on held-out
+    windows (see ``held_out_windows`` for ``split``, ``episodes``, ``stride``)."""
+    arrays, chosen, idx, t = held_out_windows(module, datasets, (STATE_KEY, ACTION_KEY), split, episodes, horizon, stride)
+    h = module.n_obs_steps
     states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
     actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
     verts = None if vertices is None else torch.as_tensor(vertices, dtype=torch.float32).reshape(-1, 2)

@@ -1,15 +1,20 @@
 """One world-model training run (phase 1 or 2) through the shared loop of ``models.training``.
 
-Same run directory layout, resume and NaN handling as the policy's. Phase 2 starts from a
-phase-1 checkpoint (``init``): its network config, normaliser and weights are taken as they
-are, with a fresh optimiser and phase 2's own schedule. ``find_phase_one`` finds that
-checkpoint beside a phase-2 run directory.
+Same run directory layout, resume and NaN handling as the policy's, for state and visual
+world models alike. Phase 2 starts from a phase-1 checkpoint (``init``): its network config,
+normaliser and weights are taken as they are, with a fresh optimiser and phase 2's own
+schedule. ``find_phase_one`` finds that checkpoint beside a phase-2 run directory.
+
+A visual model records the frame size of its training stores (``source_size``); a store of
+another size is resized to the model's resolution with a warning.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -23,16 +28,17 @@ from datasets.normalizer import MinMaxNormalizer
 from models.checkpoint import read_checkpoint
 from models.training import LAST, RunConfig, TrainResult, check_run_dir, fit_module
 from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule, delta_statistics
-from models.world_model_config import KIND, WorldModelConfig, with_network_of
+from models.world_model_config import KIND, AnyWorldModelConfig, VisualWorldModelConfig, config_from_dict, with_network_of
 
 _PHASE_TAGS = (("phase2", "phase1"), ("phase-2", "phase-1"), ("phase_2", "phase_1"))
 
 
-def world_model_data_config(config: WorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> DataConfig:
-    """Windows of H + T states and actions; histories padded at episode starts, futures never padded."""
-    h = config.dynamics.history
+def world_model_data_config(config: AnyWorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> DataConfig:
+    """Windows of the history and T futures (observations and actions); histories padded at
+    episode starts, futures never padded."""
+    h = config.n_obs_steps
     return DataConfig(
-        paths=tuple(str(p) for p in datasets), obs_keys=(STATE_KEY,), action_key=ACTION_KEY, horizon=config.window,
+        paths=tuple(str(p) for p in datasets), obs_keys=(config.obs_key,), action_key=ACTION_KEY, horizon=config.window,
         n_obs_steps=h, n_action_steps=1, obs_steps_override=config.window, val_ratio=run.val_ratio, seed=run.seed,
         batch_size=run.batch_size, num_workers=run.num_workers,
     )
@@ -56,23 +62,45 @@ def find_phase_one(out: str | os.PathLike) -> Path:
     )
 
 
-def _stored_config(ckpt: dict[str, Any], path: Path) -> WorldModelConfig:
+def _stored_config(ckpt: dict[str, Any], path: Path) -> AnyWorldModelConfig:
     try:
-        return WorldModelConfig.from_dict(ckpt["hyper_parameters"]["config"])
+        return config_from_dict(ckpt["hyper_parameters"]["config"])
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{path}: world model checkpoint with an unreadable config ({exc})") from None
 
 
 @rank_zero_only
-def _write_run_record(run_dir: Path, config: WorldModelConfig, record: dict[str, Any], run: RunConfig) -> None:
+def _write_run_record(run_dir: Path, config: AnyWorldModelConfig, record: dict[str, Any], run: RunConfig) -> None:
     out = {"kind": KIND, "world_model": config.to_dict(), **record,
            "run": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(run).items()}}
     (run_dir / "run.json").write_text(json.dumps(out, indent=2))
 
 
-def train_world_model(config: WorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig,
+def check_observations(config: AnyWorldModelConfig, arrays: Any, source: str | os.PathLike) -> AnyWorldModelConfig:
+    """Refuse stores whose observations or actions do not fit ``config``; a visual config gets the
+    stores' frame size as ``source_size`` (a size other than a recorded one is resized, with a warning)."""
+    dyn = config.dynamics
+    actions = tuple(arrays.data[ACTION_KEY].shape[1:])
+    if actions != (dyn.action_dim,):
+        raise DataError(f"{source}: data/{ACTION_KEY} rows are {actions}, the world model needs ({dyn.action_dim},)")
+    shape = tuple(arrays.data[config.obs_key].shape[1:])
+    if not isinstance(config, VisualWorldModelConfig):
+        if shape != (dyn.state_dim,):
+            raise DataError(f"{source}: data/{config.obs_key} rows are {shape}, the world model needs ({dyn.state_dim},)")
+        return config
+    if len(shape) != 3 or shape[0] != shape[1] or shape[2] != dyn.img_channels:
+        raise DataError(f"{source}: data/{config.obs_key} frames are {shape}; the visual world model needs square "
+                        f"(S, S, {dyn.img_channels}) RGB frames")
+    if dyn.source_size is not None and dyn.source_size != shape[0]:
+        warnings.warn(f"{source}: frames are {shape[0]} px, the model's earlier training used {dyn.source_size} px; "
+                      f"resizing {shape[0]} -> {dyn.resolution} px", stacklevel=2)
+        return config
+    return dataclasses.replace(config, dynamics=dataclasses.replace(dyn, source_size=shape[0]))
+
+
+def train_world_model(config: AnyWorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig,
                       init: str | os.PathLike | None = None) -> TrainResult:
-    """Train (or resume) a state world model; phase 2 needs ``init`` (a phase-1 checkpoint) unless resuming."""
+    """Train (or resume) a state or visual world model; phase 2 needs ``init`` (a phase-1 checkpoint) unless resuming."""
     run_dir = Path(run.run_dir)
     last = check_run_dir(run)
     start_step, init_state = 0, None
@@ -91,10 +119,7 @@ def train_world_model(config: WorldModelConfig, datasets: Sequence[str | os.Path
         raise DataError("phase 2 starts from phase-1 weights: pass init (--init PHASE1_RUN/checkpoints/last.ckpt)")
 
     data = EpisodeDataModule(world_model_data_config(config, datasets, run))
-    for key, want in ((STATE_KEY, config.dynamics.state_dim), (ACTION_KEY, config.dynamics.action_dim)):
-        shape = tuple(data.arrays.data[key].shape[1:])
-        if shape != (want,):
-            raise DataError(f"{datasets[0]}: data/{key} rows are {shape}, the world model needs ({want},)")
+    config = check_observations(config, data.arrays, datasets[0])
     record = {"datasets": [str(p) for p in datasets], "val_ratio": run.val_ratio, "seed": run.seed,
               "init": None if init is None else str(init)}
     (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
@@ -103,9 +128,10 @@ def train_world_model(config: WorldModelConfig, datasets: Sequence[str | os.Path
     L.seed_everything(run.seed + start_step, workers=True, verbose=False)
     if init_state is None:
         normalizer = data.normalizer
-        lo, hi = delta_statistics(data.arrays.data[STATE_KEY], data.arrays.episode_ends, data.train_episodes,
-                                  config.dynamics.angle_dims)
-        normalizer.add(DELTA_KEY, lo, hi)
+        if not isinstance(config, VisualWorldModelConfig):
+            lo, hi = delta_statistics(data.arrays.data[STATE_KEY], data.arrays.episode_ends, data.train_episodes,
+                                      config.dynamics.angle_dims)
+            normalizer.add(DELTA_KEY, lo, hi)
         module = WorldModelModule(config, normalizer=normalizer, data=record)
     else:
         module = WorldModelModule(config, normalizer=MinMaxNormalizer(), data=record)

@@ -1,0 +1,100 @@
+"""World models on the CPU: rollout latency for K proposals of T = 16 actions, and one gradient
+step on the actions through model + reward (what GPC-OPT pays per iteration).
+
+State model (cpu profile, MLP) scored by the registration reward; visual model (cpu profile,
+EDM U-Net, frozen noise) scored by a placeholder differentiable image score (the mean pixel
+of the final predicted frame), standing in for the learned reward. Latency does not depend on
+the weights, so untrained networks of the profiles' shapes are timed unless checkpoints are given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.common import append_rows, median_seconds, show
+from datasets.normalizer import MinMaxNormalizer
+from models.reward import RegistrationReward
+from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule
+from models.world_model_config import world_model_profile
+
+KS = (1, 16, 100)
+T = 16
+TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
+GOAL = torch.tensor([256.0, 256.0, math.pi / 4])
+
+
+def _model(obs: str, checkpoint: str | None) -> WorldModelModule:
+    if checkpoint:
+        return WorldModelModule.load_from_checkpoint(checkpoint)
+    norm = MinMaxNormalizer()
+    norm.add(ACTION_KEY, np.zeros(2), np.full(2, 512.0))
+    if obs == "state":
+        norm.add(STATE_KEY, np.zeros(5), np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi]))
+        norm.add(DELTA_KEY, -np.array([10.0, 10.0, 2.0, 2.0, 0.02]), np.array([10.0, 10.0, 2.0, 2.0, 0.02]))
+    torch.manual_seed(0)
+    return WorldModelModule(world_model_profile("cpu", 1, obs=obs).config, normalizer=norm).eval()
+
+
+def _inputs(model: WorldModelModule, obs: str, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(k)
+    n = model.n_obs_steps
+    if obs == "state":
+        history = torch.rand(n, 5, generator=g) * torch.tensor([400.0, 400.0, 200.0, 200.0, 6.0]) + 50
+    else:
+        s = model.config.dynamics.resolution
+        history = torch.rand(n, 3, s, s, generator=g)
+    return history, torch.rand(k, T, 2, generator=g) * 400 + 50
+
+
+def rows_for(obs: str, checkpoint: str | None) -> list[list[str]]:
+    model = _model(obs, checkpoint)
+    reward = RegistrationReward(TEE, GOAL)
+    params = sum(p.numel() for p in model.parameters()) / 1e6
+    label = f"{obs} ({Path(checkpoint).name if checkpoint else 'cpu profile'}, {params:.2f}M params)"
+    rows = []
+    for k in KS:
+        history, actions = _inputs(model, obs, k)
+
+        def roll() -> None:
+            with torch.no_grad():
+                model.rollout(history, actions)
+
+        def grad_step() -> None:
+            a = actions.clone().requires_grad_(True)
+            futures = model.rollout(history, a)
+            score = reward(futures) if obs == "state" else futures[:, -1].mean(dim=(1, 2, 3))
+            score.sum().backward()
+
+        repeat = 3 if obs == "image" and k == 100 else 7
+        number = 20 if obs == "state" else 1
+        r = median_seconds(roll, number=number, repeat=repeat)
+        g = median_seconds(grad_step, number=number, repeat=repeat)
+        rows.append([label, f"K={k}, T={T}", f"{r * 1e3:,.1f} ms", f"{g * 1e3:,.1f} ms"])
+    return rows
+
+
+def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None) -> None:
+    rows = rows_for("state", state_checkpoint) + rows_for("image", image_checkpoint)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    header = ["model", "setting", "rollout (median)", "grad step: model + reward (median)"]
+    show(f"World model rollouts, {torch.get_num_threads()} threads (load {load:.1f})", header, rows)
+    if readme:
+        append_rows(readme, "world_model", header + ["threads, load"], [r + [f"{torch.get_num_threads()}, {load:.1f}"] for r in rows])
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--state-checkpoint", default=None)
+    parser.add_argument("--image-checkpoint", default=None)
+    parser.add_argument("--threads", type=int, default=None)
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    run(args.readme, args.state_checkpoint, args.image_checkpoint)
