@@ -208,15 +208,9 @@ class Planner:
 
 def load_world_model(path: str | os.PathLike, task: str | None = None) -> Any:
     """A world-model checkpoint of either kind (state MLP or visual EDM), from its record alone."""
-    from models.checkpoint import read_checkpoint
     from models.world_model import WorldModelModule
 
-    obs = read_checkpoint(path, "world_model", task=task)["gpc"].get("obs", "state")
-    if obs == "state":
-        return WorldModelModule.load_from_checkpoint(path, task=task)
-    from models.visual_world_model import VisualWorldModelModule
-
-    return VisualWorldModelModule.load_from_checkpoint(path, task=task)
+    return WorldModelModule.load_from_checkpoint(path, task=task)
 
 
 def load_planner(policy: str | os.PathLike, world_model: str | os.PathLike, reward: Reward,

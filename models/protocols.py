@@ -57,7 +57,8 @@ class WorldModel(Protocol):
     """Rolls out K action chunks from one (or K) observation histories in one batched, differentiable call.
 
     Planners read the history from the observation named by an optional ``obs_key``
-    attribute (``state`` when absent; the ground-truth simulator reads ``sim``).
+    attribute (``state`` when absent; ``img`` for visual models, whose futures are frames
+    ``(K, T', 3, S, S)``; the ground-truth simulator reads ``sim``).
     """
 
     n_obs_steps: int  # history length H the model reads

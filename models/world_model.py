@@ -203,6 +203,11 @@ class WorldModelModule(L.LightningModule):
         return self.dynamics.n_obs_steps
 
     @property
+    def obs_key(self) -> str:
+        """The observation a planner feeds this model's history from (``img`` frames or ``state``)."""
+        return "img" if isinstance(self.dynamics, VisualDynamics) else STATE_KEY
+
+    @property
     def data_record(self) -> dict[str, Any]:
         return dict(self.hparams.get("data", {}))
 

@@ -245,3 +245,31 @@ def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
         assert len(server.requests) == decisions  # every answer came from the cache
     res = CliRunner().invoke(app, args[:-2] + ["--out", str(tmp_path / "v2")])
     assert res.exit_code != 0 and "--vlm-base-url" in res.output
+
+
+def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
+    """Image policy + visual world model + learned image reward, end to end through `gpc eval`."""
+    from models.reward_predictor import reward_profile
+    from models.reward_training import train_reward_predictor
+    from tasks.pusht import geometry
+
+    collect(CollectJob(out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
+    data, run = [tmp_path / "img.zarr"], dict(batch_size=8, progress=False, accelerator="cpu")
+    policy = train_policy(policy_profile("tiny", "image").policy, data, RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
+    wm = train_world_model(world_model_profile("tiny", 1, obs="image").config, data,
+                           RunConfig(run_dir=tmp_path / "w", max_steps=3, **run))
+    reward_config = reward_profile("tiny").config.with_task(geometry.TEE_BOXES.reshape(-1, 2), geometry.GOAL_POSE, geometry.WORKSPACE)
+    reward = train_reward_predictor(reward_config, data, RunConfig(run_dir=tmp_path / "r", max_steps=3, **run))
+    out = tmp_path / "vision"
+    res = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "rank", "-K", "3", "--world-model", str(wm.last),
+                                   "--reward", "learned", "--reward-checkpoint", str(reward.last),
+                                   "--seeds", "100000:100002", "--max-steps", "16", "--batch", "2", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["controller"]["controller"] == "rank K=3" and 0.0 <= summary["mean_score"] <= 1.0
+    assert set(summary["time_share"]) == {"policy", "world_model", "reward"}
+    # a visual world model cannot plan for a keypoint policy: one line naming both
+    bad = CliRunner().invoke(app, ["eval", ckpts["policy"], "--planner", "rank", "--world-model", str(wm.last),
+                                   "--seeds", "100000", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code != 0 and "a visual world model cannot plan for a keypoints policy" in bad.output
+    assert len(bad.output.strip().splitlines()) == 1
