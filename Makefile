@@ -39,6 +39,13 @@ ifeq ($(PROFILE),smoke)
   ARGS.grad-4x3 := --planner grad -K 4 -M 3
   CEILING := gt-sim-K4
   ARGS.gt-sim-K4 := --planner gt-sim -K 4
+  VPOLICY := --profile tiny --max-steps 10
+  VWM1 := --profile tiny --max-steps 10
+  VWM2 := --profile tiny --max-steps 4
+  VREWARD := --profile tiny --max-steps 10
+  VEVAL := --seeds 100000:100002 --max-steps 16 --batch 2
+  VPLANNERS := vrank-K3
+  ARGS.vrank-K3 := --planner rank -K 3
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
@@ -57,6 +64,16 @@ else ifeq ($(PROFILE),paper)
   ARGS.grad-100x30 := --planner grad -K 100 -M 30
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
+  VPOLICY := --profile paper
+  VWM1 := --profile paper
+  VWM2 := --profile paper
+  VREWARD := --profile paper
+  VEVAL := --seeds 100000:100100 --batch 50
+  VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
+  ARGS.vrank-K50 := --planner rank -K 50
+  ARGS.vrank-K100 := --planner rank -K 100
+  ARGS.vopt-M25 := --planner opt -M 25
+  ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
@@ -74,14 +91,24 @@ else ifeq ($(PROFILE),cpu)
   ARGS.grad-10x30 := --planner grad -K 10 -M 30
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
+  VPOLICY := --profile cpu --max-steps 3000
+  VWM1 := --profile cpu --max-steps 5000 --precision bf16-mixed
+  VWM2 := --profile cpu --max-steps 1000 --precision bf16-mixed
+  VREWARD := --profile cpu
+  VEVAL := --seeds $(or $(SEEDS),100000:100020) --batch 10
+  VPLANNERS := vrank-K8 vrank-K16 vopt-M5
+  ARGS.vrank-K8 := --planner rank -K 8
+  ARGS.vrank-K16 := --planner rank -K 16
+  ARGS.vopt-M5 := --planner opt -M 5
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test bench reproduce-pusht check-sim clean
+.PHONY: help venv test bench reproduce-pusht reproduce-pusht-vision check-sim clean
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward)"
 	@echo "make test              run the test suite"
 	@echo "make bench             run the benchmarks and append their figures to README.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
@@ -137,15 +164,15 @@ $(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 	$(BIN)/gpc eval world-model $(WM_CKPT) $(WM_DATA)
 	touch $@
 
-$(RESULTS)/bc/summary.json: $(RUN_DIR)/policy.done
-	$(BIN)/gpc eval $(POLICY_CKPT) $(EVAL) --workers $(WORKERS) --out $(RESULTS)/bc
-
-# One eval per planner, each skipped once its summary is newer than the checkpoints it used.
-define planner_rule
-$(RESULTS)/$(1)/summary.json: $(RUN_DIR)/policy.done $(WM_RUN)-phase2.done
-	$(BIN)/gpc eval $(POLICY_CKPT) $(ARGS.$(1)) $(if $(findstring gt-sim,$(1)),,--world-model $(WM_CKPT)) $(EVAL) --workers $(WORKERS) --out $(RESULTS)/$(1)
+# One eval per controller (NAME, results dir, prerequisites, gpc eval arguments), each skipped
+# once its summary is newer than the checkpoints it used.
+define eval_rule
+$(2)/$(1)/summary.json: $(3)
+	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1)
 endef
-$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call planner_rule,$(n))))
+$(eval $(call eval_rule,bc,$(RESULTS),$(RUN_DIR)/policy.done,$(POLICY_CKPT) $(EVAL)))
+$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(RUN_DIR)/policy.done $(WM_RUN)-phase2.done,\
+  $(POLICY_CKPT) $(ARGS.$(n)) $(if $(findstring gt-sim,$(n)),,--world-model $(WM_CKPT)) $(EVAL))))
 
 $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
 	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
@@ -154,6 +181,47 @@ $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULT
 
 reproduce-pusht: $(TABLE)
 	@cat $(TABLE)
+
+# The vision pipeline: an image policy, the visual (EDM) world model and the learned image reward.
+VPOLICY_CKPT := $(RUN_DIR)/vpolicy/checkpoints/last.ckpt
+VWM_CKPT := $(WM_RUN)-visual-phase2/checkpoints/last.ckpt
+REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
+VRESULTS := $(RESULTS)-vision
+VTABLE := $(if $(filter cpu1,$(PROFILE)$(EXPLORE)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
+
+$(RUN_DIR)/vpolicy.done: $(RUN_DIR)/expert.done
+	if [ -f $(VPOLICY_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs image $(VPOLICY) --seed 0 --out $(RUN_DIR)/vpolicy $$resume
+	touch $@
+
+$(WM_RUN)-visual-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(WM_RUN)-visual-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(WM_RUN)-visual-phase1 $$resume
+	touch $@
+
+$(WM_RUN)-visual-phase2.done: $(WM_RUN)-visual-phase1.done
+	if [ -f $(VWM_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) $(VWM2) --seed 0 --out $(WM_RUN)-visual-phase2 $$resume
+	$(BIN)/gpc eval world-model $(VWM_CKPT) $(WM_DATA)
+	touch $@
+
+$(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(REWARD_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train reward --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr $(VREWARD) --seed 0 \
+	  --out $(RUN_DIR)/reward $$resume
+	touch $@
+
+VDONE := $(RUN_DIR)/vpolicy.done $(WM_RUN)-visual-phase2.done $(RUN_DIR)/reward.done
+$(eval $(call eval_rule,bc,$(VRESULTS),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
+$(foreach n,$(VPLANNERS),$(eval $(call eval_rule,$(n),$(VRESULTS),$(VDONE),\
+  $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VWM_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) $(VEVAL))))
+
+$(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json)
+	$(BIN)/gpc compare $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)) --baseline $(VRESULTS)/bc --paper pusht-vision --out $@ \
+	  --title "Vision Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC (image policy trained on expert data)"
+
+reproduce-pusht-vision: $(VTABLE)
+	@cat $(VTABLE)
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

@@ -17,8 +17,9 @@ import numpy as np
 
 from datasets.errors import DataError
 
-# The paper's Table I (state Push-T, 100 seeds), keyed by our controller labels.
+# The paper's tables (100 seeds; vision: IoU score), keyed by our controller labels.
 PAPER = {
+    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882},
     "pusht-state": {
         "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
         "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,

@@ -42,3 +42,10 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert third.returncode == 0 and (tmp_path / "results" / "rank-K4" / "summary.json").exists()
     assert {p: p.stat().st_mtime_ns for p in stamps if "rank-K4" not in str(p)} == {
         p: t for p, t in stamps.items() if "rank-K4" not in str(p)}
+    vision = subprocess.run([a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args], cwd=ROOT,
+                            capture_output=True, text=True, timeout=600)
+    assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
+    table = json.loads((tmp_path / "results-vision" / "pusht_vision.json").read_text())
+    assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
+    assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
+
