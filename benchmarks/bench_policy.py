@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import append_rows, median_seconds, show
+from benchmarks.common import median_seconds, publish
 from datasets.normalizer import MinMaxNormalizer
 from models.policy import PolicyModule
 from models.policy_config import policy_profile
@@ -75,9 +75,7 @@ def run(readme: Path | None, checkpoint: str | None = None, obs: str = "keypoint
     policy = PolicyModule.load_from_checkpoint(checkpoint) if checkpoint else _policy("cpu", obs)
     rows += sample_rows(policy, "cpu profile" if not checkpoint else Path(checkpoint).name)
     header = ["work", "setting", "throughput", "latency (median)", "target"]
-    show(f"Diffusion Policy ({obs} obs), {torch.get_num_threads()} threads", header, rows)
-    if readme:
-        append_rows(readme, "policy", header, rows)
+    publish(f"Diffusion Policy ({obs} obs), {torch.get_num_threads()} threads", "policy", header, rows, readme)
 
 
 if __name__ == "__main__":

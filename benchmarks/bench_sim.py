@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import append_rows, median_seconds, show
+from benchmarks.common import median_seconds, publish
 from tasks.pusht.record import RecordConfig, record_episode
 from tasks.pusht.env import PushTEnv
 
@@ -70,9 +70,7 @@ def _run(readme: Path | None) -> list[list[str]]:
         ["explore episode (with images)", f"{np.median(explore):.2f} s median", f"{max(explore):.2f} s max", ""],
     ]
     header = ["work", "throughput", "latency (median)", "target"]
-    show("Push-T simulator, one core", header, rows)
-    if readme:
-        append_rows(readme, "sim", header, rows)
+    publish("Push-T simulator, one core", "sim", header, rows, readme)
     return rows
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import append_rows, show
+from benchmarks.common import publish
 from benchmarks.vlm_server import Reply, ScriptedChatServer
 from models.vlm_reward import VLMConfig, VLMReward
 from tasks.pusht import render_state
@@ -58,9 +58,7 @@ def run(readme: Path | None, decisions: int = 15) -> None:
     rows = [decision_row(k, decisions) for k in (4, 16, 100)]
     header = ["K", "image", "request", "queries/decision", "prompt tokens", "completion tokens",
               "decision (median)", "of which HTTP query (median)"]
-    show(f"VLM reward per decision, loopback server, {decisions} decisions each", header, rows)
-    if readme:
-        append_rows(readme, "vlm", header, rows)
+    publish(f"VLM reward per decision, loopback server, {decisions} decisions each", "vlm", header, rows, readme)
 
 
 if __name__ == "__main__":

@@ -53,3 +53,10 @@ def append_rows(readme: Path, name: str, header: list[str], rows: list[list[str]
     else:
         text = re.sub(re.escape(end), lambda _: "\n".join(lines) + "\n" + end, text, count=1)
     readme.write_text(text)
+
+
+def publish(title: str, name: str, header: list[str], rows: list[list[str]], readme: Path | None) -> None:
+    """Print the table and, given a README, append its rows there (between the ``bench:NAME`` markers)."""
+    show(title, header, rows)
+    if readme:
+        append_rows(readme, name, header, rows)

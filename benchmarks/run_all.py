@@ -8,12 +8,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import bench_policy, bench_sim, bench_vlm, bench_world_model  # noqa: E402
+from benchmarks import bench_planners, bench_policy, bench_sim, bench_vlm, bench_world_model  # noqa: E402
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--readme", type=Path, default=None)
-    parser.add_argument("--only", choices=["sim", "policy", "vlm", "world-model"], default=None)
+    parser.add_argument("--only", choices=["sim", "policy", "vlm", "world-model", "planners"], default=None)
     args = parser.parse_args()
     if args.only in (None, "sim"):
         bench_sim.run(args.readme)
@@ -23,3 +23,5 @@ if __name__ == "__main__":
         bench_vlm.run(args.readme)
     if args.only in (None, "world-model"):
         bench_world_model.run(args.readme)
+    if args.only in (None, "planners"):
+        bench_planners.run(args.readme)

@@ -1,0 +1,92 @@
+"""Seconds per decision of every planner for one observation history (a deployed robot's case).
+
+Targets on 2 cores (issue 5): GPC-RANK K=100 <= 0.25 s, GPC-RANK+OPT K=10 M=30 <= 1 s.
+Latency does not depend on the weights, so untrained networks of the ``cpu`` profiles are
+timed unless checkpoints are given; scores come from ``make reproduce-pusht``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.bench_policy import _policy
+from benchmarks.common import median_seconds, publish
+from datasets.normalizer import MinMaxNormalizer
+from gpc_cli.planning import RewardSpec, build_reward
+from models.controllers import SamplingConfig
+from models.planner_config import PlannerConfig
+from models.planners import Planner
+from models.world_model import STATE_KEY, WorldModelModule
+from models.world_model_config import world_model_profile
+from tasks.pusht import SimulatorModel, observe
+from tasks.pusht.env import PushTEnv
+
+SETTINGS = [  # (label, planner config fields, world model: learned | gt-sim, target)
+    ("rank K=100", dict(kind="rank", num_proposals=100), "learned", "<= 0.25 s"),
+    ("rank K=10", dict(kind="rank", num_proposals=10), "learned", ""),
+    ("opt M=30", dict(kind="opt", num_proposals=1, opt_steps=30), "learned", ""),
+    ("rank-opt 10x30", dict(kind="rank-opt", num_proposals=10, opt_steps=30), "learned", "<= 1 s"),
+    ("gt-sim K=100", dict(kind="rank", num_proposals=100), "gt-sim", ""),
+    ("cem 100x5", dict(kind="cem", num_proposals=100, opt_steps=5), "learned", ""),
+    ("mppi 100x5", dict(kind="mppi", num_proposals=100, opt_steps=5), "learned", ""),
+    ("grad 10x30", dict(kind="grad", num_proposals=10, opt_steps=30), "learned", ""),
+]
+
+
+def _world_model() -> WorldModelModule:
+    config = world_model_profile("cpu", 1).config
+    rng = np.random.default_rng(0)
+    states = rng.uniform(0, 512, (256, 5))
+    normalizer = MinMaxNormalizer.fit({STATE_KEY: states, "action": rng.uniform(0, 512, (256, 2))})
+    normalizer.add("state_delta", -np.ones(5), np.ones(5))
+    return WorldModelModule(config, normalizer).eval()
+
+
+def run(readme: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None) -> None:
+    from models.policy import PolicyModule
+
+    torch.manual_seed(0)
+    policy = PolicyModule.load_from_checkpoint(policy_ckpt) if policy_ckpt else _policy("cpu", "keypoints")
+    learned = WorldModelModule.load_from_checkpoint(wm_ckpt) if wm_ckpt else _world_model()
+    reward = build_reward(RewardSpec(), "pusht")
+    env = PushTEnv()
+    env.reset(seed=100000)
+    o = observe(env, images=False, sim=True)
+    obs = {k: np.stack([v, v])[None] for k, v in o.items()}
+    rows = []
+    for steps in (10, 5):
+        sampling = SamplingConfig("ddim", steps)
+        for label, fields, model, target in SETTINGS:
+            wm = SimulatorModel() if model == "gt-sim" else learned
+            planner = Planner(PlannerConfig(**fields), wm, reward, policy, sampling)
+            gen = torch.Generator().manual_seed(0)
+            parts: dict[str, float] = {}
+
+            def decide() -> None:
+                with torch.no_grad():
+                    plan = planner.plan(obs, [gen])
+                for k, v in plan.seconds.items():
+                    parts[k] = parts.get(k, 0.0) + v
+
+            t = median_seconds(decide, number=1, repeat=5)
+            total = sum(parts.values()) or 1.0
+            share = ", ".join(f"{k} {v / total:.0%}" for k, v in sorted(parts.items(), key=lambda kv: -kv[1]))
+            rows.append([label, f"DDIM-{steps}", f"{t:.3f} s", share, target])
+    load = os.getloadavg()[0]
+    header = ["planner", "policy sampling", "s/decision (median)", "time share", "target", "threads, load"]
+    rows = [r + [f"{torch.get_num_threads()}, {load:.1f}"] for r in rows]
+    publish(f"Planners, one history, {torch.get_num_threads()} threads (load {load:.1f})", "planners", header, rows, readme)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--policy", default=None, help="A policy checkpoint (default: an untrained cpu-profile network).")
+    parser.add_argument("--world-model", default=None, help="A state world-model checkpoint.")
+    args = parser.parse_args()
+    run(args.readme, args.policy, args.world_model)
