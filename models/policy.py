@@ -8,7 +8,6 @@ rebuilds all of it.
 
 from __future__ import annotations
 
-import math
 import os
 from contextlib import contextmanager
 from typing import Any, Iterator, Mapping, Sequence
@@ -23,23 +22,12 @@ from models.checkpoint import checkpoint_meta, read_checkpoint
 from models.denoiser import ActionDenoiser
 from models.diffusion import DiffusionSampler, SamplerConfig
 from models.ema import EMAWeights
+from models.optim import adamw_cosine
 from models.policy_config import PolicyConfig
 
 KIND = "policy"
 ACTION_KEY = "action"
 Generators = torch.Generator | Sequence[torch.Generator] | None
-
-
-def cosine_with_warmup(warmup: int, total: int):
-    """Learning-rate factor: linear 0 -> 1 over ``warmup`` steps, then half a cosine to 0 at ``total``."""
-
-    def factor(step: int) -> float:
-        if step < warmup:
-            return step / max(1, warmup)
-        progress = min(1.0, (step - warmup) / max(1, total - warmup))
-        return max(0.0, 0.5 * (1.0 + math.cos(math.pi * progress)))
-
-    return factor
 
 
 @contextmanager
@@ -146,12 +134,7 @@ class PolicyModule(L.LightningModule):
         return loss
 
     def configure_optimizers(self) -> dict[str, Any]:
-        o = self.config.optim
-        optimizer = torch.optim.AdamW(self.model.parameters(), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
-        total = self.trainer.estimated_stepping_batches
-        total = int(total) if math.isfinite(total) else 10**12
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine_with_warmup(o.warmup_steps, total))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+        return adamw_cosine(self.model.parameters(), self.config.optim, self.trainer)
 
     # ------------------------------------------------------------------ sampling
     def _noise(self, batch: int, shape: tuple[int, ...], generator: Generators) -> torch.Tensor:

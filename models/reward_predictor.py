@@ -37,7 +37,7 @@ from torch import nn
 from datasets.normalizer import MinMaxNormalizer
 from models.checkpoint import checkpoint_meta, read_checkpoint
 from models.config_io import PlainConfig
-from models.policy import cosine_with_warmup
+from models.optim import adamw_cosine
 from models.policy_config import OptimConfig
 from models.resnet import ResNet18Trunk
 from models.reward import PoseReward, RewardConfig, registration_distance
@@ -352,10 +352,4 @@ class RewardPredictorModule(L.LightningModule):
         return loss
 
     def configure_optimizers(self) -> dict[str, Any]:
-        o = self.config.optim
-        params = [p for p in self.predictor.parameters() if p.requires_grad]
-        optimizer = torch.optim.AdamW(params, lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
-        total = self.trainer.estimated_stepping_batches
-        total = int(total) if math.isfinite(total) else 10**12
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine_with_warmup(o.warmup_steps, total))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+        return adamw_cosine(self.predictor.parameters(), self.config.optim, self.trainer)

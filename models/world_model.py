@@ -33,7 +33,7 @@ from torch import nn
 from datasets.normalizer import MinMaxNormalizer
 from models.checkpoint import checkpoint_meta, read_checkpoint
 from models.mlp import MLP
-from models.policy import cosine_with_warmup
+from models.optim import adamw_cosine
 from models.protocols import WorldModel  # noqa: F401  (re-exported: the interface this module implements)
 from models.visual_world_model import VisualDynamics
 from models.world_model_config import KIND, AnyWorldModelConfig, DynamicsConfig, VisualWorldModelConfig, WorldModelConfig, config_from_dict
@@ -266,10 +266,4 @@ class WorldModelModule(L.LightningModule):
         return loss
 
     def configure_optimizers(self) -> dict[str, Any]:
-        o = self.config.optim
-        params = [p for p in self.dynamics.parameters() if p.requires_grad]
-        optimizer = torch.optim.AdamW(params, lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
-        total = self.trainer.estimated_stepping_batches
-        total = int(total) if math.isfinite(total) else 10**12
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine_with_warmup(o.warmup_steps, total))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+        return adamw_cosine(self.dynamics.parameters(), self.config.optim, self.trainer)

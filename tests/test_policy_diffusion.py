@@ -11,7 +11,7 @@ from models.config_io import from_plain
 from models.diffusion import DiffusionSampler, NoiseConfig, NoiseSchedule, SamplerConfig, squaredcos_betas
 from models.ema import EMAConfig, EMAWeights
 from models.encoders import EncoderConfig, ObsEncoder, crop_images
-from models.policy import cosine_with_warmup
+from models.optim import cosine_with_warmup
 from models.policy_config import PolicyConfig, policy_profile
 from models.resnet import ResNet18Trunk, SpatialSoftmax
 from models.unet1d import ConditionalUnet1D, UNetConfig
