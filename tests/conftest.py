@@ -30,3 +30,16 @@ def human_arrays(human_data: Path) -> dict:
         "episode_ends": store.episode_ends,
         "store": store,
     }
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """Tiny networks run fastest on one thread (and do not fight a busy machine for the second core);
+    modules opt in with ``pytestmark = pytest.mark.usefixtures("one_thread")``."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+

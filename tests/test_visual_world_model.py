@@ -68,12 +68,7 @@ def tiny(phase: int = 1, **kw) -> VisualWorldModelConfig:
     return dataclasses.replace(world_model_profile("tiny", phase, obs="image").config, **kw)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -70,13 +70,7 @@ def tiny(phase: int = 1, **kw) -> WorldModelConfig:
     return dataclasses.replace(world_model_profile("tiny", phase).config, **kw)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Tiny networks run fastest on one thread (and do not fight a busy machine for the second core)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
