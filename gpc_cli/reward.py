@@ -12,10 +12,7 @@ from typing import List, Optional
 
 import typer
 
-from gpc_cli.run_options import (
-    Accelerator, BatchSize, CheckpointEvery, Datasets, Devices, MaxEpochs, MaxSteps, NumNodes, NumWorkers, Out,
-    Precision, Progress, Resume, Seed, Strategy, Task, ValEvery, echo_result, run_config,
-)
+from gpc_cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
 
 reward_app = typer.Typer(help="Train and evaluate the learned image reward.", no_args_is_help=True)
 
@@ -26,6 +23,7 @@ def _group() -> None:
 
 
 @reward_app.command("train")
+@with_run_options
 def train(
     dataset: Datasets,
     out: Out,
@@ -33,20 +31,7 @@ def train(
     profile: str = typer.Option("cpu", "--profile", help="cpu (ResNet18 width 32, 64 px), paper (full ResNet18, 96 px), tiny (tests)."),
     image_size: Optional[int] = typer.Option(None, "--image-size", min=8, help="Frame size the network reads (default: the profile's); match the world model's frames."),
     lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's)."),
-    max_steps: MaxSteps = None,
-    max_epochs: MaxEpochs = None,
-    batch_size: BatchSize = None,
-    accelerator: Accelerator = "auto",
-    devices: Devices = "1",
-    strategy: Strategy = "auto",
-    num_nodes: NumNodes = 1,
-    precision: Precision = "32-true",
-    seed: Seed = 0,
-    resume: Resume = False,
-    checkpoint_every: CheckpointEvery = 500,
-    val_every: ValEvery = None,
-    num_workers: NumWorkers = 0,
-    progress: Progress = True,
+    options: dict | None = None,
 ) -> None:
     """Train the image reward's pose predictor on the frames of Zarr stores, labelled by their recorded states."""
     from models.reward_predictor import reward_profile
@@ -60,12 +45,7 @@ def train(
         config = dataclasses.replace(config, input_size=image_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
-    run = run_config(
-        out, chosen.max_steps, chosen.batch_size, max_steps=max_steps, max_epochs=max_epochs, batch_size=batch_size,
-        task=task, accelerator=accelerator, devices=devices, strategy=strategy, num_nodes=num_nodes, precision=precision,
-        seed=seed, resume=resume, progress=progress, checkpoint_every=checkpoint_every, val_every=val_every,
-        num_workers=num_workers,
-    )
+    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
     echo_result(train_reward_predictor(config, dataset, run))
 
 

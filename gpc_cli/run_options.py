@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
+import typing
 from pathlib import Path
-from typing import Annotated, Any, List, Optional
+from typing import Annotated, Any, Callable, List, Optional
 
 import typer
 
@@ -28,6 +31,36 @@ NumWorkers = Annotated[int, typer.Option("--num-workers", min=0, help="DataLoade
 Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Show the progress bar.")]
 
 
+
+
+# The Lightning options every training command takes, with their defaults: declared once here.
+RUN_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
+    ("max_steps", MaxSteps, None), ("max_epochs", MaxEpochs, None), ("batch_size", BatchSize, None),
+    ("accelerator", Accelerator, "auto"), ("devices", Devices, "1"), ("strategy", Strategy, "auto"),
+    ("num_nodes", NumNodes, 1), ("precision", Precision, "32-true"), ("seed", Seed, 0), ("resume", Resume, False),
+    ("checkpoint_every", CheckpointEvery, 500), ("val_every", ValEvery, None), ("num_workers", NumWorkers, 0),
+    ("progress", Progress, True),
+)
+
+
+def with_run_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Give a `gpc train ...` command the shared Lightning options; it receives them as ``options`` (a dict
+    of ``RUN_OPTIONS`` names to values) and passes them on to ``run_config``."""
+    hints = typing.get_type_hints(command, include_extras=True)
+    own = [p.replace(annotation=hints.get(p.name, p.annotation))
+           for p in inspect.signature(command).parameters.values() if p.name != "options"]
+    shared = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=kind)
+              for name, kind, default in RUN_OPTIONS]
+
+    @functools.wraps(command)
+    def wrapper(**kwargs: Any) -> Any:
+        options = {name: kwargs.pop(name) for name, _, _ in RUN_OPTIONS}
+        return command(**kwargs, options=options)
+
+    del wrapper.__wrapped__  # Typer reads the signature below, not the wrapped function's
+    wrapper.__signature__ = inspect.Signature(own + shared)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in own + shared}
+    return wrapper
 
 
 def run_config(out: Path, default_steps: int, default_batch: int, *, max_steps: int | None, max_epochs: int | None,

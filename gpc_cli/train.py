@@ -7,10 +7,7 @@ from typing import Optional
 
 import typer
 
-from gpc_cli.run_options import (
-    Accelerator, BatchSize, CheckpointEvery, Datasets, Devices, MaxEpochs, MaxSteps, NumNodes, NumWorkers, Out,
-    Precision, Progress, Resume, Seed, Strategy, Task, ValEvery, echo_result, run_config,
-)
+from gpc_cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
 
 train_app = typer.Typer(help="Train the policy (world models and rewards follow).", no_args_is_help=True)
 
@@ -21,6 +18,7 @@ def _group() -> None:
 
 
 @train_app.command("policy")
+@with_run_options
 def policy(
     dataset: Datasets,
     out: Out,
@@ -28,20 +26,7 @@ def policy(
     obs: str = typer.Option("state", "--obs", help="Observations: state, keypoints or image."),
     profile: str = typer.Option("cpu", "--profile", help="cpu (narrow U-Net, DDIM-10), paper (Diffusion Policy's sizes), tiny (tests)."),
     lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
-    max_steps: MaxSteps = None,
-    max_epochs: MaxEpochs = None,
-    batch_size: BatchSize = None,
-    accelerator: Accelerator = "auto",
-    devices: Devices = "1",
-    strategy: Strategy = "auto",
-    num_nodes: NumNodes = 1,
-    precision: Precision = "32-true",
-    seed: Seed = 0,
-    resume: Resume = False,
-    checkpoint_every: CheckpointEvery = 500,
-    val_every: ValEvery = None,
-    num_workers: NumWorkers = 0,
-    progress: Progress = True,
+    options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
     from models.policy_config import policy_profile
@@ -51,11 +36,7 @@ def policy(
     policy_config = chosen.policy
     if lr is not None:
         policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
-    run = run_config(
-        out, chosen.max_steps, chosen.batch_size, max_steps=max_steps, max_epochs=max_epochs, batch_size=batch_size, task=task, accelerator=accelerator,
-        devices=devices, strategy=strategy, num_nodes=num_nodes, precision=precision, seed=seed, resume=resume,
-        progress=progress, checkpoint_every=checkpoint_every, val_every=val_every, num_workers=num_workers,
-    )
+    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
     echo_result(train_policy(policy_config, dataset, run))
 
 

@@ -14,10 +14,7 @@ from typing import List, Optional
 
 import typer
 
-from gpc_cli.run_options import (
-    Accelerator, BatchSize, CheckpointEvery, Datasets, Devices, MaxEpochs, MaxSteps, NumNodes, NumWorkers, Out,
-    Precision, Progress, Resume, Seed, Strategy, Task, ValEvery, echo_result, run_config,
-)
+from gpc_cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
 
 world_model_app = typer.Typer(help="Train and evaluate world models (state or image).", no_args_is_help=True)
 
@@ -28,6 +25,7 @@ def _group() -> None:
 
 
 @world_model_app.command("train")
+@with_run_options
 def train(
     dataset: Datasets,
     out: Out,
@@ -38,20 +36,7 @@ def train(
     obs: str = typer.Option("state", "--obs", help="Observations the model predicts: state (MLP) or image (EDM U-Net)."),
     profile: str = typer.Option("cpu", "--profile", help="state: cpu (256x4 MLP, T=16) or tiny; image: cpu (48 px, frameskip 4), paper (96 px, GPU) or tiny."),
     feedback: Optional[str] = typer.Option(None, "--feedback", help="Image phase 2: frames fed back as context, denoised (one-step estimate, default) or sampled."),
-    max_steps: MaxSteps = None,
-    max_epochs: MaxEpochs = None,
-    batch_size: BatchSize = None,
-    accelerator: Accelerator = "auto",
-    devices: Devices = "1",
-    strategy: Strategy = "auto",
-    num_nodes: NumNodes = 1,
-    precision: Precision = "32-true",
-    seed: Seed = 0,
-    resume: Resume = False,
-    checkpoint_every: CheckpointEvery = 500,
-    val_every: ValEvery = None,
-    num_workers: NumWorkers = 0,
-    progress: Progress = True,
+    options: dict | None = None,
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
     import dataclasses
@@ -71,14 +56,10 @@ def train(
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--profile") from None
     config = dataclasses.replace(chosen.config, unroll=unroll, **({"feedback": feedback} if feedback else {}))
-    if phase == 2 and init is None and not resume:
+    if phase == 2 and init is None and not options["resume"]:
         init = find_phase_one(out)
         typer.echo(f"phase 2 starts from {init}")
-    run = run_config(
-        out, chosen.max_steps, chosen.batch_size, max_steps=max_steps, max_epochs=max_epochs, batch_size=batch_size, task=task, accelerator=accelerator,
-        devices=devices, strategy=strategy, num_nodes=num_nodes, precision=precision, seed=seed, resume=resume,
-        progress=progress, checkpoint_every=checkpoint_every, val_every=val_every, num_workers=num_workers,
-    )
+    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
     echo_result(train_world_model(config, dataset, run, init=init))
 
 
