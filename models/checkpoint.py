@@ -52,3 +52,18 @@ def read_checkpoint(
         if want is not None and meta.get(key) != want:
             raise DataError(f"{path}: {kind} checkpoint has {key} {meta.get(key)!r}, expected {want!r}")
     return ckpt
+
+
+def rebuild(cls: Any, ckpt: dict[str, Any], path: str | os.PathLike, what: str) -> Any:
+    """The module a checked checkpoint describes: its saved config (and data record), then its weights, in eval mode.
+
+    A checkpoint whose weights or config this gpc cannot take raises one ``ValueError`` naming the file.
+    """
+    try:
+        hp = ckpt["hyper_parameters"]
+        module = cls(hp["config"], **({"data": hp["data"]} if "data" in hp else {}))
+        module.load_state_dict(ckpt["state_dict"])
+    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"{path}: {what} checkpoint does not match this gpc's {what} ({first[:200]})") from None
+    return module.eval()

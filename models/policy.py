@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from datasets.normalizer import MinMaxNormalizer
-from models.checkpoint import checkpoint_meta, read_checkpoint
+from models.checkpoint import checkpoint_meta, read_checkpoint, rebuild
 from models.denoiser import ActionDenoiser
 from models.diffusion import DiffusionSampler, SamplerConfig
 from models.ema import EMAWeights
@@ -83,13 +83,7 @@ class PolicyModule(L.LightningModule):
         ``task`` / ``obs_type``, when given, must match the checkpoint's record (DataError otherwise).
         """
         ckpt = read_checkpoint(checkpoint_path, KIND, task=task, map_location=map_location, obs=obs_type)
-        try:
-            module = cls(ckpt["hyper_parameters"]["config"])
-            module.load_state_dict(ckpt["state_dict"])
-        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ValueError(f"{checkpoint_path}: policy checkpoint does not match this gpc's policy ({first[:200]})") from None
-        return module.eval()
+        return rebuild(cls, ckpt, checkpoint_path, "policy")
 
     # ------------------------------------------------------------------ data
     def _normalize_obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:

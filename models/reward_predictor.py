@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from datasets.normalizer import MinMaxNormalizer
-from models.checkpoint import checkpoint_meta, read_checkpoint
+from models.checkpoint import checkpoint_meta, read_checkpoint, rebuild
 from models.config_io import PlainConfig
 from models.optim import adamw_cosine
 from models.policy_config import OptimConfig
@@ -296,14 +296,7 @@ class RewardPredictorModule(L.LightningModule):
     ) -> "RewardPredictorModule":
         """Rebuild the predictor (config, normaliser, weights) from a checkpoint, in eval mode."""
         ckpt = read_checkpoint(checkpoint_path, KIND, task=task, map_location=map_location, obs=OBS_TYPE)
-        try:
-            hp = ckpt["hyper_parameters"]
-            module = cls(hp["config"], data=hp.get("data"))
-            module.load_state_dict(ckpt["state_dict"])
-        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ValueError(f"{checkpoint_path}: reward checkpoint does not match this gpc's ({first[:200]})") from None
-        return module.eval()
+        return rebuild(cls, ckpt, checkpoint_path, "reward")
 
     # ------------------------------------------------------------------ training
     def _frames_states(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:

@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from datasets.normalizer import MinMaxNormalizer
-from models.checkpoint import checkpoint_meta, read_checkpoint
+from models.checkpoint import checkpoint_meta, read_checkpoint, rebuild
 from models.mlp import MLP
 from models.optim import adamw_cosine
 from models.protocols import WorldModel  # noqa: F401  (re-exported: the interface this module implements)
@@ -232,14 +232,7 @@ class WorldModelModule(L.LightningModule):
         ``task`` / ``obs_type``, when given, must match the checkpoint's record (DataError otherwise).
         """
         ckpt = read_checkpoint(checkpoint_path, KIND, task=task, map_location=map_location, obs=obs_type)
-        try:
-            hp = ckpt["hyper_parameters"]
-            module = cls(hp["config"], data=hp.get("data"))
-            module.load_state_dict(ckpt["state_dict"])
-        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ValueError(f"{checkpoint_path}: world model checkpoint does not match this gpc's ({first[:200]})") from None
-        return module.eval()
+        return rebuild(cls, ckpt, checkpoint_path, "world model")
 
     # ------------------------------------------------------------------ training
     def _loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
