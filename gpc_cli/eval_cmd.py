@@ -8,6 +8,7 @@ from typing import Annotated, List, Optional
 import typer
 
 from gpc_cli.groups import DefaultToRun
+from gpc_cli.run_options import with_shared_options
 
 eval_app = typer.Typer(
     cls=DefaultToRun, no_args_is_help=True,
@@ -32,18 +33,27 @@ Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
 MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
 Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
 
+# What every closed-loop command takes to build its controller (received as ``planning``).
+PLANNING_OPTIONS = (
+    ("world_model", WorldModel, None), ("k", K, None), ("m", M, None), ("lr", Lr, 2.0), ("reward", Reward, "registration"),
+    ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
+    ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
+    ("spacing", Spacing, None),
+)
+with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
-def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[str], k: Optional[int], m: Optional[int],
-                        lr: float, reward: str, aggregate: str, reward_ckpt: Optional[str], vlm_url: Optional[str],
-                        vlm_model: Optional[str], method: Optional[str], steps: Optional[int], keep_futures: bool = False,
-                        vlm_cache: Optional[Path] = None, spacing: Optional[str] = None):
+
+def recipe_from_options(checkpoint: Path, planner: str, planning: dict, keep_futures: bool = False,
+                        vlm_cache: Optional[Path] = None):
     """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
     from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
     from models.controllers import SamplingConfig
     from models.planner_config import PlannerConfig
     from models.policy import PolicyModule
 
-    sampling = SamplingConfig(method, steps, spacing)
+    o = planning
+    world_model, k, m, lr = o["world_model"], o["k"], o["m"], o["lr"]
+    sampling = SamplingConfig(o["method"], o["steps"], o["spacing"])
     policy = PolicyModule.load_from_checkpoint(str(checkpoint))
     if planner == "bc":
         if world_model or k or m:
@@ -56,36 +66,27 @@ def recipe_from_options(checkpoint: Path, planner: str, world_model: Optional[st
         world_model = GT_SIM
     default_m = {"rank": 0, "cem": 5, "mppi": 5}.get(kind, 30)
     vlm = None
-    if reward == "vlm":
+    if o["reward"] == "vlm":
         from models.vlm_reward import VLMConfig
 
-        if not vlm_url or not vlm_model:
+        if not o["vlm_base_url"] or not o["vlm_model"]:
             raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model (the key comes from $OPENAI_API_KEY)")
-        vlm = VLMConfig(base_url=vlm_url, model=vlm_model, cache_dir=str(vlm_cache) if vlm_cache else None)
+        vlm = VLMConfig(base_url=o["vlm_base_url"], model=o["vlm_model"], cache_dir=str(vlm_cache) if vlm_cache else None)
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
                            opt_steps=m if m is not None else default_m, lr=lr, keep_futures=keep_futures)
     recipe = PlannerRecipe(str(checkpoint), config, world_model,
-                           RewardSpec(reward, aggregate, reward_ckpt, vlm), sampling, policy.config.task)
+                           RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm), sampling,
+                           policy.config.task)
     recipe()  # build it once here: a mismatched world model or reward fails now, in one line
     return recipe
 
 
 @eval_app.command("run")
+@with_planning_options
 def eval_run(
     checkpoint: Checkpoint,
     planner: PlannerKind = "bc",
-    world_model: WorldModel = None,
-    k: K = None,
-    m: M = None,
-    lr: Lr = 2.0,
-    reward: Reward = "registration",
-    reward_aggregate: RewardAggregate = "final",
-    reward_checkpoint: RewardCkpt = None,
-    vlm_base_url: VlmUrl = None,
-    vlm_model: VlmModel = None,
-    method: Method = None,
-    steps: Steps = None,
-    spacing: Spacing = None,
+    planning: dict | None = None,
     seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
     out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
     sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
@@ -103,9 +104,7 @@ def eval_run(
     from gpc_cli.planning import planner_summary
     from gpc_cli.reports import parse_seeds
 
-    recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
-                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=videos > 0,
-                                 vlm_cache=out / "vlm_cache", spacing=spacing)
+    recipe = recipe_from_options(checkpoint, planner, planning, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
     for s in samplings:
@@ -124,21 +123,11 @@ def eval_run(
     typer.echo((out / "summary.md").read_text())
 
 
+@with_planning_options
 def plan_one(
     checkpoint: Checkpoint,
     planner: PlannerKind = "rank",
-    world_model: WorldModel = None,
-    k: K = None,
-    m: M = None,
-    lr: Lr = 2.0,
-    reward: Reward = "registration",
-    reward_aggregate: RewardAggregate = "final",
-    reward_checkpoint: RewardCkpt = None,
-    vlm_base_url: VlmUrl = None,
-    vlm_model: VlmModel = None,
-    method: Method = None,
-    steps: Steps = None,
-    spacing: Spacing = None,
+    planning: dict | None = None,
     seed: int = typer.Option(100000, "--seed", min=0, help="Environment seed."),
     out: Path = typer.Option(Path("results/plan"), "--out", "-o", help="Directory for the MP4 and the episode's JSON."),
     goal: Goal = "fixed",
@@ -151,9 +140,7 @@ def plan_one(
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
-    recipe = recipe_from_options(checkpoint, planner, world_model, k, m, lr, reward, reward_aggregate,
-                                 reward_checkpoint, vlm_base_url, vlm_model, method, steps, keep_futures=True,
-                                 vlm_cache=out / "vlm_cache", spacing=spacing)
+    recipe = recipe_from_options(checkpoint, planner, planning, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
     result = evaluate(recipe, config)

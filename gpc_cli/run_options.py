@@ -43,24 +43,32 @@ RUN_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
 )
 
 
-def with_run_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Give a `gpc train ...` command the shared Lightning options; it receives them as ``options`` (a dict
-    of ``RUN_OPTIONS`` names to values) and passes them on to ``run_config``."""
-    hints = typing.get_type_hints(command, include_extras=True)
-    own = [p.replace(annotation=hints.get(p.name, p.annotation))
-           for p in inspect.signature(command).parameters.values() if p.name != "options"]
-    shared = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=kind)
-              for name, kind, default in RUN_OPTIONS]
+def with_shared_options(spec: tuple[tuple[str, Any, Any], ...], key: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Give a command the options of ``spec`` (name, Annotated type, default) after its own; it receives
+    their values as one dict in its parameter ``key``. Declares a family of options once for many commands."""
 
-    @functools.wraps(command)
-    def wrapper(**kwargs: Any) -> Any:
-        options = {name: kwargs.pop(name) for name, _, _ in RUN_OPTIONS}
-        return command(**kwargs, options=options)
+    def decorate(command: Callable[..., Any]) -> Callable[..., Any]:
+        hints = typing.get_type_hints(command, include_extras=True)
+        own = [p.replace(annotation=hints.get(p.name, p.annotation))
+               for p in inspect.signature(command).parameters.values() if p.name != key]
+        shared = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=kind)
+                  for name, kind, default in spec]
 
-    del wrapper.__wrapped__  # Typer reads the signature below, not the wrapped function's
-    wrapper.__signature__ = inspect.Signature(own + shared)  # type: ignore[attr-defined]
-    wrapper.__annotations__ = {p.name: p.annotation for p in own + shared}
-    return wrapper
+        @functools.wraps(command)
+        def wrapper(**kwargs: Any) -> Any:
+            values = {name: kwargs.pop(name) for name, _, _ in spec}
+            return command(**kwargs, **{key: values})
+
+        del wrapper.__wrapped__  # Typer reads the signature below, not the wrapped function's
+        wrapper.__signature__ = inspect.Signature(own + shared)  # type: ignore[attr-defined]
+        wrapper.__annotations__ = {p.name: p.annotation for p in own + shared}
+        return wrapper
+
+    return decorate
+
+
+# `gpc train ...` commands receive the Lightning options as ``options`` and pass them on to ``run_config``.
+with_run_options = with_shared_options(RUN_OPTIONS, "options")
 
 
 def run_config(out: Path, default_steps: int, default_batch: int, *, max_steps: int | None, max_epochs: int | None,
