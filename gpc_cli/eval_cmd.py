@@ -43,18 +43,23 @@ PLANNING_OPTIONS = (
 with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
 
-def recipe_from_options(checkpoint: Path, planner: str, planning: dict, keep_futures: bool = False,
+def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: str, keep_futures: bool = False,
                         vlm_cache: Optional[Path] = None):
     """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
     from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
     from models.controllers import SamplingConfig
     from models.planner_config import PlannerConfig
     from models.policy import PolicyModule
+    from tasks import get_task
 
     o = planning
     world_model, k, m, lr = o["world_model"], o["k"], o["m"], o["lr"]
     sampling = SamplingConfig(o["method"], o["steps"], o["spacing"])
     policy = PolicyModule.load_from_checkpoint(str(checkpoint))
+    unseen = [key for key in policy.obs_keys if key not in get_task(policy.config.task).record_keys(True, goal)]
+    if unseen:
+        raise ValueError(f"{checkpoint}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "
+                         f"observe (a policy trained with --goal random needs --goal random)")
     if planner == "bc":
         if world_model or k or m:
             raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
@@ -104,7 +109,7 @@ def eval_run(
     from gpc_cli.planning import planner_summary
     from gpc_cli.reports import parse_seeds
 
-    recipe = recipe_from_options(checkpoint, planner, planning, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
+    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
     for s in samplings:
@@ -140,7 +145,7 @@ def plan_one(
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
-    recipe = recipe_from_options(checkpoint, planner, planning, keep_futures=True, vlm_cache=out / "vlm_cache")
+    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
     result = evaluate(recipe, config)

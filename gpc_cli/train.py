@@ -26,14 +26,19 @@ def policy(
     obs: str = typer.Option("state", "--obs", help="Observations: state, keypoints or image."),
     profile: str = typer.Option("cpu", "--profile", help="cpu (narrow U-Net, DDIM-10), paper (Diffusion Policy's sizes), tiny (tests)."),
     lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
+    goal: str = typer.Option("fixed", "--goal", help="fixed: one goal for all episodes; random: the policy also reads each episode's goal (stores from `gpc collect --goal random`)."),
     options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
     from models.policy_config import policy_profile
     from models.training import train_policy
 
+    if goal not in ("fixed", "random"):
+        raise typer.BadParameter(f"goal {goal!r}: use fixed or random", param_hint="--goal")
     chosen = policy_profile(profile, obs, task)
     policy_config = chosen.policy
+    if goal == "random":
+        policy_config = dataclasses.replace(policy_config, encoder=dataclasses.replace(policy_config.encoder, goal=True))
     if lr is not None:
         policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)

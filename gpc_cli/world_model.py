@@ -35,6 +35,7 @@ def train(
     task: Task = "pusht",
     obs: str = typer.Option("state", "--obs", help="Observations the model predicts: state (MLP) or image (EDM U-Net)."),
     profile: str = typer.Option("cpu", "--profile", help="state: cpu (256x4 MLP, T=16) or tiny; image: cpu (48 px, frameskip 4), paper (96 px, GPU) or tiny."),
+    frame: str = typer.Option("object", "--frame", help="State phase 1: object (also see the scene from the block's frame) or world (world coordinates only)."),
     feedback: Optional[str] = typer.Option(None, "--feedback", help="Image phase 2: frames fed back as context, denoised (one-step estimate, default) or sampled."),
     options: dict | None = None,
 ) -> None:
@@ -52,9 +53,9 @@ def train(
         raise typer.BadParameter(f"--feedback applies to --obs image --phase 2 and is one of {', '.join(FEEDBACK)}",
                                  param_hint="--feedback")
     try:
-        chosen = world_model_profile(profile, phase, task, obs)
+        chosen = world_model_profile(profile, phase, task, obs, frame)
     except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--profile") from None
+        raise typer.BadParameter(str(exc), param_hint="--frame" if "frame" in str(exc) else "--profile") from None
     config = dataclasses.replace(chosen.config, unroll=unroll, **({"feedback": feedback} if feedback else {}))
     if phase == 2 and init is None and not options["resume"]:
         init = find_phase_one(out)

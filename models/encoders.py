@@ -10,6 +10,10 @@ keypoints  keypoint, state            flattened keypoints + agent position
 image      img, state                 ResNet18 spatial-softmax features + agent position
 =========  =========================  ===============================================
 
+With ``goal=True`` (a goal that varies per episode, GPC's random-goal variant) the encoder
+also reads the goal: its pose (``goal``) for state observations, its keypoints
+(``goal_keypoint``) for keypoint ones; images show the goal drawn in the scene already.
+
 The agent position is the first ``agent_dims`` entries of ``state``. Inputs arrive
 normalised (``MinMaxNormalizer``) with shapes ``(B, T, *step_shape)``; images are
 ``(B, T, H, W, C)`` in [-1, 1]. Images are randomly cropped in training mode and
@@ -30,6 +34,7 @@ OBS_KEYS: dict[str, tuple[str, ...]] = {
     "keypoints": ("keypoint", "state"),
     "image": ("img", "state"),
 }
+GOAL_KEYS: dict[str, tuple[str, ...]] = {"state": ("goal",), "keypoints": ("goal_keypoint",), "image": ()}
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,7 @@ class EncoderConfig:
     resnet_width: int = 64  # ResNet18 stem width (64 is the standard network; smaller for CPU or tests)
     spatial_keypoints: int = 32  # spatial-softmax maps (each gives an expected x, y)
     image_feature_dim: int = 64  # features per image after the spatial softmax's linear map
+    goal: bool = False  # the goal varies per episode: also read it (GOAL_KEYS)
 
     def __post_init__(self) -> None:
         if self.obs_type not in OBS_KEYS:
@@ -54,7 +60,7 @@ class EncoderConfig:
     @property
     def keys(self) -> tuple[str, ...]:
         """Data keys this observation type reads."""
-        return OBS_KEYS[self.obs_type]
+        return OBS_KEYS[self.obs_type] + (GOAL_KEYS[self.obs_type] if self.goal else ())
 
     def shape(self, key: str) -> tuple[int, ...]:
         shapes = dict(self.obs_shapes)
@@ -128,6 +134,8 @@ class ObsEncoder(nn.Module):
             parts = [VectorPart("keypoint", config.shape("keypoint")), VectorPart("state", config.shape("state"), agent)]
         else:
             parts = [ImagePart("img", config.shape("img"), config), VectorPart("state", config.shape("state"), agent)]
+        if config.goal:
+            parts += [VectorPart(key, config.shape(key)) for key in GOAL_KEYS[config.obs_type]]
         self.parts = nn.ModuleList(parts)
         self.feature_dim = sum(p.out_dim for p in parts)
 

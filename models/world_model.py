@@ -16,7 +16,11 @@ Inputs and outputs of the predictor (``D`` state entries, ``A`` action entries):
 - the action enters normalised, and relative to the state entries it targets (Push-T: the
   agent position the PD controller drives towards);
 - the network predicts the z-scored delta to the next state; the angle delta is a wrapped
-  delta, so ``s_{t+1} = s_t + delta`` and angles are reported modulo 2 pi.
+  delta, so ``s_{t+1} = s_t + delta`` and angles are reported modulo 2 pi;
+- with an ``object_frame`` (Push-T: the block), the agent's positions, the action and the
+  block's earlier positions also enter as offsets in the block's current frame, and the
+  block's predicted displacement is read in that frame (the z-scoring is the world frame's:
+  its x and y spreads are alike).
 """
 
 from __future__ import annotations
@@ -45,6 +49,13 @@ TWO_PI = 2.0 * math.pi
 def wrap_angle(x: torch.Tensor) -> torch.Tensor:
     """Angles to [-pi, pi) (gradient 1 almost everywhere)."""
     return torch.remainder(x + math.pi, TWO_PI) - math.pi
+
+
+def rotate(points: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """Planar points ``(..., 2)`` turned by ``angle`` (broadcast over the points' leading dims)."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    px, py = points[..., 0], points[..., 1]
+    return torch.stack([c * px - s * py, s * px + c * py], dim=-1)
 
 
 def delta_statistics(states: np.ndarray, episode_ends: np.ndarray, episodes: np.ndarray,
@@ -87,6 +98,7 @@ class StateDynamics(nn.Module):
         self._linear = list(config.linear_dims)
         self._angles = list(config.angle_dims)
         self._targets = list(config.action_target_dims)
+        self._object = list(config.object_frame)
 
     def check_normalizer(self) -> None:
         missing = [k for k in (STATE_KEY, ACTION_KEY, DELTA_KEY) if k not in self.normalizer.keys()]
@@ -112,12 +124,37 @@ class StateDynamics(nn.Module):
         parts.append(action_n)
         if self._targets:
             parts.append(action_n - self.normalizer.normalize(ACTION_KEY, history[:, -1, self._targets]))
+        if self._object:
+            parts.append(self._object_points(history, action_n))
         return torch.cat(parts, dim=-1)
 
+    def _object_points(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
+        """Where the pusher was, where it is sent and where the object was, seen from the object now.
+
+        Contact dynamics do not change when the whole scene is moved or turned; in the object's
+        frame one push looks the same wherever it happens, so the network need not learn it
+        once per pose.
+        """
+        k, (x, y, a) = history.shape[0], self._object
+        points = [history[:, :-1, [x, y]]]
+        if self._targets:
+            action = self.normalizer.unnormalize(ACTION_KEY, action_n)
+            points = [history[..., self._targets], action[:, None], *points]
+        offsets = torch.cat(points, dim=1) - history[:, -1:, [x, y]]
+        return rotate(offsets, -history[:, -1:, a]).reshape(k, -1) / self.config.object_length
+
     def step(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
-        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, D)`` raw next state (angles unwrapped)."""
-        z = self.net(self._features(history, action_n))
-        return history[:, -1] + self.normalizer.unnormalize(DELTA_KEY, z)
+        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, D)`` raw next state (angles unwrapped).
+
+        With an object frame the network's object displacement is read in that frame and turned
+        back to the world's.
+        """
+        delta = self.normalizer.unnormalize(DELTA_KEY, self.net(self._features(history, action_n)))
+        if self._object:
+            x, y, a = self._object
+            moved = rotate(delta[:, [x, y]], history[:, -1, a])
+            delta = delta.index_copy(1, torch.tensor([x, y], device=delta.device), moved)
+        return history[:, -1] + delta
 
     # ------------------------------------------------------------------ rollout
     def unroll(self, history: torch.Tensor, actions: torch.Tensor, detach_feedback: bool = False) -> torch.Tensor:

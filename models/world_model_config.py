@@ -51,6 +51,8 @@ OBS_TYPES = ("state", "image")
 PROFILES = ("cpu", "tiny", "paper")
 LOSS_UNITS = ("delta", "state")
 FEEDBACK = ("denoised", "sampled")
+FRAMES = ("object", "world")  # state models: contact features in the block's frame, or world coordinates only
+PUSHT_OBJECT = (2, 3, 4)  # Push-T state entries of the block's pose (x, y, angle)
 IMAGE_KEY = "img"
 
 
@@ -71,6 +73,8 @@ class DynamicsConfig:
     depth: int = 4  # hidden layers
     activation: str = "silu"  # silu, gelu, mish or relu
     layer_norm: bool = False  # LayerNorm after each hidden Linear
+    object_frame: tuple[int, ...] = ()  # (x, y, angle) entries of a rigid object: contact features and its motion in its own frame; () for none
+    object_length: float = 50.0  # object-frame offsets are divided by this (state units; Push-T: about the T's size in px)
 
     def __post_init__(self) -> None:
         for name in ("state_dim", "action_dim", "history", "width", "depth"):
@@ -86,6 +90,24 @@ class DynamicsConfig:
             raise ValueError("an angle cannot be an action target")
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"activation {self.activation!r}: use one of {', '.join(ACTIVATIONS)}")
+        if self.object_frame:
+            frame = self.object_frame
+            if len(frame) != 3 or len(set(frame)) != 3 or not all(0 <= d < self.state_dim for d in frame):
+                raise ValueError(f"object_frame {frame}: need three distinct state entries (x, y, angle)")
+            if frame[2] not in self.angle_dims or {frame[0], frame[1]} & set(self.angle_dims):
+                raise ValueError(f"object_frame {frame}: its third entry must be an angle and the first two positions")
+            if len(self.action_target_dims) not in (0, 2):
+                raise ValueError("object_frame needs planar (2-entry) action targets, or none")
+            if self.object_length <= 0:
+                raise ValueError(f"object_length {self.object_length}: must be > 0")
+
+    @property
+    def object_points(self) -> int:
+        """Planar points seen from the object's current frame: the action targets' positions at each
+        history step and the action, and the object's own earlier positions."""
+        if not self.object_frame:
+            return 0
+        return (self.history + 1 if self.action_target_dims else 0) + self.history - 1
 
     @property
     def linear_dims(self) -> tuple[int, ...]:
@@ -95,9 +117,11 @@ class DynamicsConfig:
     @property
     def in_dim(self) -> int:
         """Input width: per history state the linear entries and cos, sin of the angles; the H - 1
-        consecutive differences; the action; the action relative to its target entries."""
+        consecutive differences; the action; the action relative to its target entries; the
+        object-frame points."""
         per_state = len(self.linear_dims) + 2 * len(self.angle_dims)
-        return self.history * per_state + (self.history - 1) * self.state_dim + self.action_dim + len(self.action_target_dims)
+        return (self.history * per_state + (self.history - 1) * self.state_dim + self.action_dim
+                + len(self.action_target_dims) + 2 * self.object_points)
 
 
 @dataclass(frozen=True)
@@ -295,16 +319,20 @@ class WorldModelProfile:
     max_steps: int
 
 
-def world_model_profile(name: str, phase: int = 1, task: str = "pusht", obs: str = "state") -> WorldModelProfile:
+def world_model_profile(name: str, phase: int = 1, task: str = "pusht", obs: str = "state",
+                        frame: str = "object") -> WorldModelProfile:
     """Named sizes per observation type.
 
     State: ``cpu`` (256x4 MLP, T = 16, trains on 2 cores), ``tiny`` (seconds-long test runs).
     Image: ``cpu`` (48 px, U-Net (16, 32, 64), frameskip 4: a 16-action chunk is 4 predictions,
     0.9M parameters, bf16 rollouts; train it with ``--precision bf16-mixed``), ``tiny`` (16 px, tests), ``paper`` (96 px, U-Net 4 x 96 with two blocks
     per level and middle attention, conditioning 256, frameskip 1: the paper's model, GPU only).
+    ``frame`` (state): ``object`` adds the block-frame features of ``DynamicsConfig.object_frame``.
     """
     if obs not in OBS_TYPES:
         raise ValueError(f"world model obs {obs!r}: use one of {', '.join(OBS_TYPES)}")
+    if frame not in FRAMES:
+        raise ValueError(f"world model frame {frame!r}: use one of {', '.join(FRAMES)}")
     if obs == "image":
         return _visual_profile(name, phase, task)
     if name == "cpu":
@@ -316,6 +344,8 @@ def world_model_profile(name: str, phase: int = 1, task: str = "pusht", obs: str
         optim = OptimConfig(lr=3e-3, betas=(0.9, 0.999), warmup_steps=2)
     else:
         raise ValueError(f"state world model profile {name!r}: use cpu or tiny")
+    if frame == "object":
+        dynamics = dataclasses.replace(dynamics, object_frame=PUSHT_OBJECT)
     config = WorldModelConfig(task=task, dynamics=dynamics, horizon=horizon, phase=phase, optim=optim)
     return WorldModelProfile(config, batch, steps)
 

@@ -143,3 +143,38 @@ def test_history_holds_consecutive_steps_like_the_training_windows():
         states.append(env.sim.state())
     np.testing.assert_allclose(recorder.seen[0][0], np.stack([states[0], states[0]]), atol=1e-4)
     np.testing.assert_allclose(recorder.seen[1][0], np.stack([states[7], states[8]]), atol=1e-4)
+
+
+def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_goal(tmp_path):
+    """GPC's random-goal variant: the stores, the policy and the planners all see each episode's goal."""
+    runner = CliRunner()
+    store = tmp_path / "expert.zarr"
+    collect(CollectJob(out=store, episodes=2, images=False, max_steps=30, goal="random"))
+    trained = runner.invoke(app, ["train", "policy", "--dataset", str(store), "--obs", "keypoints", "--goal", "random",
+                                  "--profile", "tiny", "--max-steps", "2", "--batch-size", "8", "--accelerator", "cpu",
+                                  "--no-progress", "--out", str(tmp_path / "run")])
+    assert trained.exit_code == 0, trained.output
+    ckpt = str(tmp_path / "run" / "checkpoints" / "last.ckpt")
+    from models.policy import PolicyModule
+
+    policy = PolicyModule.load_from_checkpoint(ckpt)
+    assert dict(policy.config.encoder.obs_shapes)["goal_keypoint"] == (9, 2)
+
+    seen: list[np.ndarray] = []
+    from models.reward import RegistrationReward
+
+    original = RegistrationReward.forward
+    RegistrationReward.forward = lambda self, futures, goal=None: (seen.append(goal.clone()), original(self, futures, goal))[1]
+    try:
+        res = runner.invoke(app, ["eval", ckpt, "--planner", "gt-sim", "-K", "2", "--goal", "random",
+                                  "--seeds", "100000:100002", "--max-steps", "8", "--out", str(tmp_path / "eval")])
+    finally:
+        RegistrationReward.forward = original
+    assert res.exit_code == 0, res.output
+    goals = {tuple(np.round(g.numpy(), 3).tolist()) for batch in seen for g in batch}
+    expected = {tuple(np.round(PushTEnv(goal="random").reset(seed=s)[1]["goal_pose"].astype(np.float32), 3).tolist())
+                for s in (100000, 100001)}
+    assert goals == expected  # each candidate is scored against its own episode's goal, not the fixed one
+    fixed = runner.invoke(app, ["eval", ckpt, "--seeds", "100000:100002", "--out", str(tmp_path / "fixed")])
+    lines = [line for line in fixed.output.splitlines() if line.strip()]
+    assert fixed.exit_code == 2 and len(lines) == 1 and "--goal random" in lines[0], fixed.output

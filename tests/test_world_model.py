@@ -265,3 +265,40 @@ def test_phase_one_trains_on_the_human_data(human_data, tmp_path):
     stats = result.module.dynamics.normalizer
     assert set(stats.keys()) == {"state", "action", "state_delta"}
     assert float(1 / stats.scales["state_delta"][4]) < 0.2  # wrapped angle deltas: no 2 pi jumps in the spread
+
+
+def test_object_frame_sees_a_moved_and_turned_scene_the_same():
+    """The block-frame features do not change when the whole scene is shifted and rotated, and the
+    predicted block displacement turns with the scene (the only frame-dependent part)."""
+    from models.world_model import StateDynamics, rotate
+    from models.world_model_config import DynamicsConfig
+
+    config = DynamicsConfig(width=16, depth=1, object_frame=(2, 3, 4))
+    model = StateDynamics(config)
+    model.normalizer.add("state", np.zeros(5), np.full(5, 512.0))
+    model.normalizer.add("action", np.zeros(2), np.full(2, 512.0))
+    model.normalizer.add("state_delta", np.full(5, -1.0), np.ones(5))
+    g = torch.Generator().manual_seed(0)
+    history = torch.rand(3, 2, 5, generator=g) * 200 + 150
+    action = torch.rand(3, 2, generator=g) * 200 + 150
+
+    def moved(turn: float, shift: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        angle = torch.tensor(turn)
+        h = history.clone()
+        h[..., 0:2] = rotate(history[..., 0:2], angle) + shift
+        h[..., 2:4] = rotate(history[..., 2:4], angle) + shift
+        h[..., 4] = history[..., 4] + turn
+        return h, rotate(action, angle) + shift
+
+    norm = model.normalizer.normalize
+    base = model._object_points(history, norm("action", action))
+    h2, a2 = moved(0.7, torch.tensor([12.0, -30.0]))
+    assert torch.allclose(model._object_points(h2, norm("action", a2)), base, atol=1e-4)
+    assert base.shape == (3, 2 * config.object_points) and base.abs().sum() > 0
+    with torch.no_grad():  # a network that reads only block-frame points: its block displacement turns with the scene
+        first = next(m for m in model.net.modules() if isinstance(m, torch.nn.Linear))
+        first.weight[:, : config.in_dim - 2 * config.object_points] = 0.0
+    step = model.step(history, norm("action", action)) - history[:, -1]
+    step2 = model.step(h2, norm("action", a2)) - h2[:, -1]
+    assert torch.allclose(step2[:, 2:4], rotate(step[:, 2:4], torch.tensor(0.7)), atol=1e-3)
+    assert torch.allclose(step2[:, 4], step[:, 4], atol=1e-4)

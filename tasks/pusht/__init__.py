@@ -62,7 +62,7 @@ def env_params(goal: str, max_steps: int) -> dict:
 
 def record_keys(images: bool, goal: str) -> list[str]:
     keys = ["action", "keypoint", "n_contacts", "state"] + (["img"] if images else [])
-    return sorted(keys + (["goal"] if goal == "random" else []))
+    return sorted(keys + (["goal", "goal_keypoint"] if goal == "random" else []))
 
 
 def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12)) -> float:

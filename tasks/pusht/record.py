@@ -48,7 +48,8 @@ class EpisodeStats:
     contact_fraction: float
 
 def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
-    """One step's observation in the data layout (``state``, ``keypoint``, ``img``, ``goal``).
+    """One step's observation in the data layout (``state``, ``keypoint``, ``img``; with a random
+    goal also ``goal`` (its pose) and ``goal_keypoint`` (its keypoints, laid out like ``keypoint``)).
 
     Recording and closed-loop evaluation both use it, so a policy sees at test time exactly
     the keys, shapes and dtypes it was trained on. ``sim`` adds the full simulator state
@@ -62,6 +63,7 @@ def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, 
         obs[SIM_KEY] = sim_vector(env.sim)
     if env.config.goal == "random":
         obs["goal"] = env.goal_pose.astype(np.float32)
+        obs["goal_keypoint"] = geometry.block_keypoints(env.goal_pose).astype(np.float32)
     return obs
 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
