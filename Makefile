@@ -11,14 +11,28 @@ RUN_DIR ?= runs/pusht-$(PROFILE)
 # SEEDS=START:STOP overrides the profile's test seeds (cpu: 100000:100100).
 # EXPLORE=0: the paper's ablation, the world model trained on expert data only (own runs and results).
 EXPLORE ?= 1
+# GOAL=random: GPC's variant, a goal pose drawn per seed: the policy is trained on expert
+# demonstrations towards random goals and reads the goal; the world model (goal-agnostic) is shared.
+GOAL ?= fixed
+ifeq ($(GOAL),random)
+  GOAL_TAG := -random-goal
+  POLICY_DIR := $(RUN_DIR)/policy-random-goal
+  POLICY_STORE := $(RUN_DIR)/expert-random-goal
+else ifeq ($(GOAL),fixed)
+  GOAL_TAG :=
+  POLICY_DIR := $(RUN_DIR)/policy
+  POLICY_STORE := $(RUN_DIR)/expert
+else
+  $(error GOAL=$(GOAL): use fixed or random)
+endif
 ifeq ($(EXPLORE),0)
   WM_RUN := $(RUN_DIR)/wm-no-explore
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr
-  RESULTS ?= results/pusht-$(PROFILE)-no-explore
+  RESULTS ?= results/pusht-$(PROFILE)-no-explore$(GOAL_TAG)
 else
   WM_RUN := $(RUN_DIR)/wm
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
-  RESULTS ?= results/pusht-$(PROFILE)
+  RESULTS ?= results/pusht-$(PROFILE)$(GOAL_TAG)
 endif
 
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
@@ -133,9 +147,9 @@ check-sim: $(STAMP)
 
 # Each stage is a file target: it runs when its output is missing or older than its inputs, and
 # collection and training resume from what an interrupted run left.
-POLICY_CKPT := $(RUN_DIR)/policy/checkpoints/last.ckpt
+POLICY_CKPT := $(POLICY_DIR)/checkpoints/last.ckpt
 WM_CKPT := $(WM_RUN)-phase2/checkpoints/last.ckpt
-TABLE := $(if $(filter cpu1,$(PROFILE)$(EXPLORE)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
+TABLE := $(if $(filter cpu1fixed,$(PROFILE)$(EXPLORE)$(GOAL)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
 
 $(RUN_DIR)/expert.done: | $(STAMP)
 	$(BIN)/gpc collect --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
@@ -147,10 +161,16 @@ $(RUN_DIR)/explore.done: | $(STAMP)
 	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
 	touch $@
 
-$(RUN_DIR)/policy.done: $(RUN_DIR)/expert.done
+$(RUN_DIR)/expert-random-goal.done: | $(STAMP)
+	$(BIN)/gpc collect --goal random --no-images --out $(RUN_DIR)/expert-random-goal.zarr --episodes $(EXPERT_EPISODES) \
+	  --seed 0 --workers $(WORKERS)
+	$(BIN)/gpc data info $(RUN_DIR)/expert-random-goal.zarr
+	touch $@
+
+$(POLICY_DIR).done: $(POLICY_STORE).done
 	if [ -f $(POLICY_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs keypoints $(POLICY) --seed 0 \
-	  --out $(RUN_DIR)/policy $$resume
+	$(BIN)/gpc train policy --dataset $(POLICY_STORE).zarr --obs keypoints --goal $(GOAL) $(POLICY) --seed 0 \
+	  --out $(POLICY_DIR) $$resume
 	touch $@
 
 $(WM_RUN)-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
@@ -170,14 +190,14 @@ define eval_rule
 $(2)/$(1)/summary.json: $(3)
 	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1)
 endef
-$(eval $(call eval_rule,bc,$(RESULTS),$(RUN_DIR)/policy.done,$(POLICY_CKPT) $(EVAL)))
-$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(RUN_DIR)/policy.done $(WM_RUN)-phase2.done,\
-  $(POLICY_CKPT) $(ARGS.$(n)) $(if $(findstring gt-sim,$(n)),,--world-model $(WM_CKPT)) $(EVAL))))
+$(eval $(call eval_rule,bc,$(RESULTS),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL)))
+$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(WM_RUN)-phase2.done,\
+  $(POLICY_CKPT) $(ARGS.$(n)) $(if $(findstring gt-sim,$(n)),,--world-model $(WM_CKPT)) $(EVAL) --goal $(GOAL))))
 
 $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
 	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
 	  --ceiling $(RESULTS)/$(CEILING) --paper pusht-state --out $@ \
-	  --title "State Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data)"
+	  --title "State Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data, $(GOAL) goal)"
 
 reproduce-pusht: $(TABLE)
 	@cat $(TABLE)

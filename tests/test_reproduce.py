@@ -49,3 +49,15 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
     assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
 
+    wm = tmp_path / "runs" / "wm-phase2" / "checkpoints" / "last.ckpt"
+    wm_stamp = wm.stat().st_mtime_ns
+    random_goal = subprocess.run([a.replace(f"RESULTS={tmp_path / 'results'}", f"RESULTS={tmp_path / 'results-rg'}")
+                                  for a in args] + ["GOAL=random"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert random_goal.returncode == 0, random_goal.stdout[-2000:] + random_goal.stderr[-2000:]
+    assert (tmp_path / "runs" / "policy-random-goal" / "checkpoints" / "last.ckpt").exists()
+    assert (tmp_path / "runs" / "expert-random-goal.zarr" / "data" / "goal_keypoint").exists()
+    assert wm.stat().st_mtime_ns == wm_stamp  # the goal-agnostic world model is shared, not retrained
+    rows = json.loads((tmp_path / "results-rg" / "pusht_state.json").read_text())["rows"]
+    assert len(rows) == 8 and "random goal" in (tmp_path / "results-rg" / "pusht_state.md").read_text()
+    bad = subprocess.run(args + ["GOAL=moving"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "GOAL=moving: use fixed or random" in bad.stderr
