@@ -121,7 +121,7 @@ endif
 .PHONY: help venv test bench reproduce-pusht reproduce-pusht-vision check-sim clean
 
 help:
-	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper)"
+	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward)"
 	@echo "make test              run the test suite"
 	@echo "make bench             run the benchmarks and append their figures to README.md"

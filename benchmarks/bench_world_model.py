@@ -79,8 +79,10 @@ def rows_for(obs: str, checkpoint: str | None) -> list[list[str]]:
     return rows
 
 
-def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None) -> None:
-    rows = rows_for("state", state_checkpoint) + rows_for("image", image_checkpoint)
+def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None,
+        kinds: tuple[str, ...] = ("state", "image")) -> None:
+    checkpoints = {"state": state_checkpoint, "image": image_checkpoint}
+    rows = [row for kind in kinds for row in rows_for(kind, checkpoints[kind])]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     header = ["model", "setting", "rollout (median)", "grad step: model + reward (median)"]
     show(f"World model rollouts, {torch.get_num_threads()} threads (load {load:.1f})", header, rows)
@@ -94,7 +96,9 @@ if __name__ == "__main__":
     parser.add_argument("--state-checkpoint", default=None)
     parser.add_argument("--image-checkpoint", default=None)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--obs", choices=("state", "image", "both"), default="both", help="which world models to time")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    run(args.readme, args.state_checkpoint, args.image_checkpoint)
+    run(args.readme, args.state_checkpoint, args.image_checkpoint,
+        ("state", "image") if args.obs == "both" else (args.obs,))
