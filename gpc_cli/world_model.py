@@ -74,6 +74,7 @@ def evaluate(
     stride: Optional[int] = typer.Option(None, "--stride", min=1, help="Steps between window starts (default: 1 for state, 8 for image models)."),
     max_windows: int = typer.Option(512, "--max-windows", min=1, help="Image models: at most this many windows, evenly spread."),
     noise: str = typer.Option("frozen", "--noise", help="Image models: frozen (deterministic) or sampled initial noise."),
+    pose_reader: Optional[Path] = typer.Option(None, "--pose-reader", help="Image models: read the block pose with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for world_model_eval.json and .md (default: the run's eval/)."),
 ) -> None:
     """Open-loop rollout errors per horizon step on held-out windows, beside the nothing-moves baseline.
@@ -98,14 +99,24 @@ def evaluate(
 
         if noise not in NOISE_MODES:
             raise typer.BadParameter(f"noise {noise!r}: use one of {', '.join(NOISE_MODES)}", param_hint="--noise")
+        readout = frame_readout(module.config.task)
+        if pose_reader is not None:
+            from models.reward_predictor import RewardPredictorModule
+            from models.visual_world_model_eval import LearnedPoseReadout
+
+            predictor = RewardPredictorModule.load_from_checkpoint(pose_reader, task=module.config.task).predictor
+            readout = LearnedPoseReadout(readout, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, dataset, split=split, episodes=episodes, horizon=horizon,
-                                                readout=frame_readout(module.config.task), stride=stride or 8,
+                                                readout=readout, stride=stride or 8,
                                                 max_windows=max_windows, noise=noise)
         table = visual_markdown_table(report, f"Visual world model rollouts: {checkpoint}")
         out.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out / "world_model_frames.png"), grid[..., ::-1])
         extra = f", {out / 'world_model_frames.png'}"
     else:
+        if pose_reader is not None:
+            raise typer.BadParameter("applies to image world models (a state model predicts the pose itself)",
+                                     param_hint="--pose-reader")
         geometry = get_task(module.config.task).geometry
         report = evaluate_rollouts(module, dataset, split=split, episodes=episodes, horizon=horizon,
                                    vertices=geometry.TEE_BOXES.reshape(-1, 2), stride=stride or 1)

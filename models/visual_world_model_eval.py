@@ -5,11 +5,12 @@ predicts ``T / frameskip`` frames open-loop (frozen noise unless told otherwise)
 compared with the recorded frame at that step. Beside it stands the "nothing moves"
 baseline that copies the last context frame. Image figures: SSIM (torchmetrics) and PSNR.
 
-SSIM rewards blur, so the figures that matter to a planner come from a ``ColourReadout``:
-the object's pose read from a frame by colour segmentation (centroid and the orientation of
-its principal axis, oriented by its skew; for Push-T's T block) against the pose read the
-same way from the recorded frame, on windows where the object moves, and whether the agent
-is still visible. The caller (the CLI) fills the colours from the task's renderer.
+SSIM rewards blur, so the figures that matter to a planner come from a readout: the
+object's pose read from a frame by colour segmentation (``ColourReadout``: centroid and the
+orientation of its principal axis, oriented by its skew; for Push-T's T block) or by the
+learned reward's pose predictor (``LearnedPoseReadout``), against the pose read the same way
+from the recorded frame, on windows where the object moves, and whether the agent is still
+visible (by colour). The caller (the CLI) fills the colours from the task's renderer.
 """
 
 from __future__ import annotations
@@ -80,6 +81,32 @@ class ColourReadout:
         """``(N, S, S, 3)`` uint8 -> ``(N,)`` agent pixels."""
         return self.masks(frames, self.agent_colours).sum(axis=(1, 2))
 
+    def describe(self) -> dict[str, Any]:
+        return {"pose": "colour", **asdict(self)}
+
+
+class LearnedPoseReadout:
+    """The object pose read by a learned pose predictor (``gpc train reward``), the agent by colour.
+
+    The learned image reward reads poses this way, so these are the pose errors a planner
+    scoring with it actually faces; colour segmentation mistakes a blurred T for a turned one.
+    """
+
+    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256) -> None:
+        self.colour, self.predictor, self.source, self.batch_size = colour, predictor.eval(), source, batch_size
+        self.moved_units, self.moved_deg, self.agent_min_share = colour.moved_units, colour.moved_deg, colour.agent_min_share
+        self.agent_area = colour.agent_area
+
+    @torch.no_grad()
+    def object_pose(self, frames: np.ndarray) -> np.ndarray:
+        """``(N, S, S, 3)`` uint8 -> ``(N, 3)`` (x, y, angle) in the predictor's (state) units."""
+        x = torch.from_numpy(np.ascontiguousarray(frames)).movedim(-1, 1).float() / 255.0
+        parts = [self.predictor(x[i : i + self.batch_size]) for i in range(0, len(x), self.batch_size)]
+        return torch.cat(parts).double().numpy() if parts else np.zeros((0, 3))
+
+    def describe(self) -> dict[str, Any]:
+        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour)}
+
 
 def _uint8(frames: torch.Tensor) -> np.ndarray:
     """``(..., 3, S, S)`` in [0, 1] -> ``(..., S, S, 3)`` uint8."""
@@ -105,7 +132,7 @@ def _pose_errors(pred: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.nda
 @torch.no_grad()
 def evaluate_visual_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
-    horizon: int | None = None, readout: ColourReadout | None = None, stride: int = 8, max_windows: int | None = 512,
+    horizon: int | None = None, readout: ColourReadout | LearnedPoseReadout | None = None, stride: int = 8, max_windows: int | None = 512,
     batch_size: int = 32, noise: str = "frozen", grid_windows: int = 6, seed: int = 0,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """Per-step SSIM / PSNR (and, with ``readout``, object pose errors and agent visibility) of the
@@ -148,11 +175,11 @@ def evaluate_visual_rollouts(
     }
     if readout is not None:
         report["readout"] = _readout_figures(readout, model, true, last)
-        report["readout_config"] = asdict(readout)
+        report["readout_config"] = readout.describe()
     return report, frame_grid(last[:grid_windows], true[:grid_windows], model[:grid_windows])
 
 
-def _readout_figures(readout: ColourReadout, model: np.ndarray, true: np.ndarray, last: np.ndarray) -> dict[str, Any]:
+def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndarray, true: np.ndarray, last: np.ndarray) -> dict[str, Any]:
     """Object pose errors at every step (all windows) and at the final step on windows where the object moves;
     the share of predicted frames where the agent is visible."""
     n, t = model.shape[:2]
@@ -208,7 +235,9 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
         f"## {title}", "",
         f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; {report['resolution']} px, "
         f"frameskip {report['frameskip']}, {report['noise']} noise. Each cell: model / nothing-moves baseline "
-        "(SSIM, PSNR: higher is better; pose errors: lower).", "",
+        "(SSIM, PSNR: higher is better; pose errors: lower)."
+        + (f" Object pose read by {'colour' if report['readout_config']['pose'] == 'colour' else 'the learned pose predictor'}."
+           if ro else ""), "",
         "| " + " | ".join(head) + " |", "|" + "---|" * len(head),
     ]
     for i, row in enumerate(report["steps"]):

@@ -281,3 +281,23 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path):
     import cv2
 
     assert cv2.imread(str(out / "world_model_frames.png")).shape[2] == 3
+
+
+def test_eval_can_read_poses_with_the_learned_reward_predictor(phase2, store, tmp_path):
+    """`--pose-reader`: the block pose read by a (real, briefly trained) reward predictor, as the planner's reward sees it."""
+    from models.reward_predictor import reward_profile
+    from models.reward_training import train_reward_predictor
+    from models.training import RunConfig
+    from tasks.pusht import geometry
+
+    config = reward_profile("tiny").config.with_task(geometry.TEE_BOXES.reshape(-1, 2), geometry.GOAL_POSE, geometry.WORKSPACE)
+    reader = train_reward_predictor(config, [store], RunConfig(run_dir=tmp_path / "reward", max_steps=3, batch_size=8,
+                                                               progress=False, accelerator="cpu")).last
+    cli = CliRunner()
+    ev = cli.invoke(world_model_app, ["eval", str(phase2.last), "--dataset", str(store), "--split", "all", "--episodes", "2",
+                                      "--stride", "6", "--pose-reader", str(reader), "--out", str(tmp_path / "eval")])
+    assert ev.exit_code == 0, ev.output
+    report = json.loads((tmp_path / "eval" / "world_model_eval.json").read_text())
+    assert report["readout_config"]["pose"] == "learned" and report["readout_config"]["checkpoint"] == str(reader)
+    steps = report["readout"]["per_step"]["model"]["object_units"]
+    assert len(steps) == 2 and all(np.isfinite(steps)) and "learned pose predictor" in ev.output
