@@ -49,6 +49,9 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
     assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
 
+    (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
+    stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
+    assert "--planner rank -K 4" in stale and "--planner gt-sim" not in stale
     wm = tmp_path / "runs" / "wm-phase2" / "checkpoints" / "last.ckpt"
     wm_stamp = wm.stat().st_mtime_ns
     random_goal = subprocess.run([a.replace(f"RESULTS={tmp_path / 'results'}", f"RESULTS={tmp_path / 'results-rg'}")
