@@ -99,6 +99,7 @@ class StateDynamics(nn.Module):
         self._angles = list(config.angle_dims)
         self._targets = list(config.action_target_dims)
         self._object = list(config.object_frame)
+        self.register_buffer("object_xy", torch.tensor(config.object_frame[:2], dtype=torch.long), persistent=False)
 
     def check_normalizer(self) -> None:
         missing = [k for k in (STATE_KEY, ACTION_KEY, DELTA_KEY) if k not in self.normalizer.keys()]
@@ -111,9 +112,9 @@ class StateDynamics(nn.Module):
         d = a - b
         return torch.where(self.angle_mask, wrap_angle(d), d)
 
-    def _features(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
-        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, in_dim)``."""
-        k = history.shape[0]
+    def _features(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``(K, H, D)`` raw history, ``(K, A)`` raw action -> ``(K, in_dim)``."""
+        k, action_n = history.shape[0], self.normalizer.normalize(ACTION_KEY, action)
         parts = [self.normalizer.normalize(STATE_KEY, history)[..., self._linear].reshape(k, -1)]
         if self._angles:
             angles = history[..., self._angles]
@@ -125,10 +126,10 @@ class StateDynamics(nn.Module):
         if self._targets:
             parts.append(action_n - self.normalizer.normalize(ACTION_KEY, history[:, -1, self._targets]))
         if self._object:
-            parts.append(self._object_points(history, action_n))
+            parts.append(self._object_points(history, action))
         return torch.cat(parts, dim=-1)
 
-    def _object_points(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
+    def _object_points(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Where the pusher was, where it is sent and where the object was, seen from the object now.
 
         Contact dynamics do not change when the whole scene is moved or turned; in the object's
@@ -138,32 +139,30 @@ class StateDynamics(nn.Module):
         k, (x, y, a) = history.shape[0], self._object
         points = [history[:, :-1, [x, y]]]
         if self._targets:
-            action = self.normalizer.unnormalize(ACTION_KEY, action_n)
             points = [history[..., self._targets], action[:, None], *points]
         offsets = torch.cat(points, dim=1) - history[:, -1:, [x, y]]
         return rotate(offsets, -history[:, -1:, a]).reshape(k, -1) / self.config.object_length
 
-    def step(self, history: torch.Tensor, action_n: torch.Tensor) -> torch.Tensor:
-        """``(K, H, D)`` raw history, ``(K, A)`` normalised action -> ``(K, D)`` raw next state (angles unwrapped).
+    def step(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``(K, H, D)`` raw history, ``(K, A)`` raw action -> ``(K, D)`` raw next state (angles unwrapped).
 
         With an object frame the network's object displacement is read in that frame and turned
         back to the world's.
         """
-        delta = self.normalizer.unnormalize(DELTA_KEY, self.net(self._features(history, action_n)))
+        delta = self.normalizer.unnormalize(DELTA_KEY, self.net(self._features(history, action)))
         if self._object:
             x, y, a = self._object
             moved = rotate(delta[:, [x, y]], history[:, -1, a])
-            delta = delta.index_copy(1, torch.tensor([x, y], device=delta.device), moved)
+            delta = delta.index_copy(1, self.object_xy, moved)
         return history[:, -1] + delta
 
     # ------------------------------------------------------------------ rollout
     def unroll(self, history: torch.Tensor, actions: torch.Tensor, detach_feedback: bool = False) -> torch.Tensor:
         """``(K, H, D)``, ``(K, T, A)`` raw -> ``(K, T, D)`` raw predictions (angles unwrapped)."""
         window = history
-        actions_n = self.normalizer.normalize(ACTION_KEY, actions)
         out = []
         for t in range(actions.shape[1]):
-            nxt = self.step(window, actions_n[:, t])
+            nxt = self.step(window, actions[:, t])
             out.append(nxt)
             fed = nxt.detach() if detach_feedback else nxt
             window = torch.cat([window[:, 1:], fed[:, None]], dim=1)

@@ -145,7 +145,7 @@ def test_history_holds_consecutive_steps_like_the_training_windows():
     np.testing.assert_allclose(recorder.seen[1][0], np.stack([states[7], states[8]]), atol=1e-4)
 
 
-def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_goal(tmp_path):
+def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_goal(tmp_path, monkeypatch):
     """GPC's random-goal variant: the stores, the policy and the planners all see each episode's goal."""
     runner = CliRunner()
     store = tmp_path / "expert.zarr"
@@ -164,12 +164,11 @@ def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_go
     from models.reward import RegistrationReward
 
     original = RegistrationReward.forward
-    RegistrationReward.forward = lambda self, futures, goal=None: (seen.append(goal.clone()), original(self, futures, goal))[1]
-    try:
-        res = runner.invoke(app, ["eval", ckpt, "--planner", "gt-sim", "-K", "2", "--goal", "random",
-                                  "--seeds", "100000:100002", "--max-steps", "8", "--out", str(tmp_path / "eval")])
-    finally:
-        RegistrationReward.forward = original
+    monkeypatch.setattr(RegistrationReward, "forward",
+                        lambda self, futures, goal=None: (seen.append(goal.clone()), original(self, futures, goal))[1])
+    res = runner.invoke(app, ["eval", ckpt, "--planner", "gt-sim", "-K", "2", "--goal", "random",
+                              "--seeds", "100000:100002", "--max-steps", "8", "--out", str(tmp_path / "eval")])
+    monkeypatch.undo()
     assert res.exit_code == 0, res.output
     goals = {tuple(np.round(g.numpy(), 3).tolist()) for batch in seen for g in batch}
     expected = {tuple(np.round(PushTEnv(goal="random").reset(seed=s)[1]["goal_pose"].astype(np.float32), 3).tolist())
