@@ -15,17 +15,18 @@ import torch
 
 from benchmarks.common import median_seconds, publish
 from datasets.normalizer import MinMaxNormalizer
+from datasets.windows import IMAGE_KEYS
 from models.policy import PolicyModule
 from models.policy_config import policy_profile
 
-SHAPES = {"state": (5,), "keypoint": (9, 2)}
+SHAPES = {"state": (5,), "keypoint": (9, 2), "img": (96, 96, 3)}
 
 
 def _policy(profile: str, obs: str) -> PolicyModule:
     config = policy_profile(profile, obs).policy.with_obs_shapes({k: SHAPES[k] for k in policy_profile(profile, obs).policy.obs_keys})
     rng = np.random.default_rng(0)
     data = {k: rng.uniform(0, 512, (64,) + SHAPES[k]) for k in config.obs_keys} | {"action": rng.uniform(0, 512, (64, 2))}
-    return PolicyModule(config, normalizer=MinMaxNormalizer.fit(data))
+    return PolicyModule(config, normalizer=MinMaxNormalizer.fit(data, image_keys=IMAGE_KEYS))
 
 
 def _batch(policy: PolicyModule, n: int) -> dict[str, torch.Tensor]:
@@ -82,5 +83,6 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--readme", type=Path, default=None)
     parser.add_argument("--checkpoint", default=None)
+    parser.add_argument("--obs", choices=["state", "keypoints", "image"], default="keypoints")
     args = parser.parse_args()
-    run(args.readme, args.checkpoint)
+    run(args.readme, args.checkpoint, args.obs)
