@@ -52,7 +52,7 @@ def train_rows(profiles: list[str], obs: str) -> list[list[str]]:
 
         t = median_seconds(step, number=1, repeat=3 if name == "paper" else 7)
         params = sum(p.numel() for p in policy.model.parameters()) / 1e6
-        rows.append([f"train {name} ({params:.1f}M params)", f"batch {prof.batch_size}",
+        rows.append([f"train {obs} {name} ({params:.1f}M params)", f"batch {prof.batch_size}",
                      f"{prof.batch_size / t:,.0f} samples/s", f"{t * 1e3:,.0f} ms/step", ""])
     return rows
 
@@ -74,7 +74,7 @@ def run(readme: Path | None, checkpoint: str | None = None, obs: str = "keypoint
     torch.manual_seed(0)
     rows = train_rows(["tiny", "cpu", "paper"], obs)
     policy = PolicyModule.load_from_checkpoint(checkpoint) if checkpoint else _policy("cpu", obs)
-    rows += sample_rows(policy, "cpu profile" if not checkpoint else Path(checkpoint).name)
+    rows += sample_rows(policy, f"{obs} cpu profile" if not checkpoint else Path(checkpoint).name)
     header = ["work", "setting", "throughput", "latency (median)", "target"]
     publish(f"Diffusion Policy ({obs} obs), {torch.get_num_threads()} threads", "policy", header, rows, readme)
 
