@@ -23,7 +23,8 @@ SHAPES = {"state": (5,), "keypoint": (9, 2), "img": (96, 96, 3)}
 
 
 def _policy(profile: str, obs: str) -> PolicyModule:
-    config = policy_profile(profile, obs).policy.with_obs_shapes({k: SHAPES[k] for k in policy_profile(profile, obs).policy.obs_keys})
+    config = policy_profile(profile, obs).policy
+    config = config.with_obs_shapes({k: SHAPES[k] for k in config.obs_keys})
     rng = np.random.default_rng(0)
     data = {k: rng.uniform(0, 512, (64,) + SHAPES[k]) for k in config.obs_keys} | {"action": rng.uniform(0, 512, (64, 2))}
     return PolicyModule(config, normalizer=MinMaxNormalizer.fit(data, image_keys=IMAGE_KEYS))

@@ -168,7 +168,6 @@ def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_go
                         lambda self, futures, goal=None: (seen.append(goal.clone()), original(self, futures, goal))[1])
     res = runner.invoke(app, ["eval", ckpt, "--planner", "gt-sim", "-K", "2", "--goal", "random",
                               "--seeds", "100000:100002", "--max-steps", "8", "--out", str(tmp_path / "eval")])
-    monkeypatch.undo()
     assert res.exit_code == 0, res.output
     goals = {tuple(np.round(g.numpy(), 3).tolist()) for batch in seen for g in batch}
     expected = {tuple(np.round(PushTEnv(goal="random").reset(seed=s)[1]["goal_pose"].astype(np.float32), 3).tolist())
