@@ -72,7 +72,7 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
         record = module.data_record
         if "val_ratio" not in record:
             raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
-        _, chosen = split_episodes(arrays.n_episodes, float(record["val_ratio"]), int(record["seed"]))
+        _, chosen = split_episodes(arrays.n_episodes, float(record["val_ratio"]), int(record.get("split_seed", record["seed"])))
         if len(chosen) == 0:
             raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
     else:

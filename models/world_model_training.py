@@ -1,7 +1,7 @@
 """One world-model training run (phase 1 or 2) through the shared loop of ``models.training``.
 
 Same run directory layout, resume and NaN handling as the policy's, for state and visual
-world models alike. Phase 2 starts from a phase-1 checkpoint (``init``): its network config,
+world models alike. Phase 2 starts from a phase-1 checkpoint (``init``): its network config, held-out episodes,
 normaliser and weights are taken as they are, with a fresh optimiser and phase 2's own
 schedule. ``find_phase_one`` finds that checkpoint beside a phase-2 run directory.
 
@@ -33,13 +33,16 @@ from models.world_model_config import KIND, AnyWorldModelConfig, VisualWorldMode
 _PHASE_TAGS = (("phase2", "phase1"), ("phase-2", "phase-1"), ("phase_2", "phase_1"))
 
 
-def world_model_data_config(config: AnyWorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig) -> DataConfig:
+def world_model_data_config(config: AnyWorldModelConfig, datasets: Sequence[str | os.PathLike], run: RunConfig,
+                            split: tuple[int, float] | None = None) -> DataConfig:
     """Windows of the history and T futures (observations and actions); histories padded at
-    episode starts, futures never padded."""
+    episode starts, futures never padded. ``split``: (seed, val ratio) of the held-out episodes
+    (default: the run's)."""
     h = config.n_obs_steps
+    split_seed, val_ratio = split if split is not None else (run.seed, run.val_ratio)
     return DataConfig(
         paths=tuple(str(p) for p in datasets), obs_keys=(config.obs_key,), action_key=ACTION_KEY, horizon=config.window,
-        n_obs_steps=h, n_action_steps=1, obs_steps_override=config.window, val_ratio=run.val_ratio, seed=run.seed,
+        n_obs_steps=h, n_action_steps=1, obs_steps_override=config.window, val_ratio=val_ratio, seed=split_seed,
         batch_size=run.batch_size, num_workers=run.num_workers,
     )
 
@@ -60,6 +63,14 @@ def find_phase_one(out: str | os.PathLike) -> Path:
         f"phase 2 starts from phase-1 weights and found none (looked for {', '.join(map(str, candidates))}); "
         "pass --init PHASE1_RUN/checkpoints/last.ckpt"
     )
+
+
+def split_of(record: dict[str, Any], run: RunConfig) -> tuple[int, float]:
+    """(seed, val ratio) of the episodes a checkpoint held out, so that a run started from it
+    holds out the same ones whatever its own seed (else its "held-out" episodes were trained on)."""
+    if "val_ratio" not in record:
+        return run.seed, run.val_ratio
+    return int(record.get("split_seed", record["seed"])), float(record["val_ratio"])
 
 
 def _stored_config(ckpt: dict[str, Any], path: Path) -> AnyWorldModelConfig:
@@ -103,7 +114,7 @@ def train_world_model(config: AnyWorldModelConfig, datasets: Sequence[str | os.P
     """Train (or resume) a state or visual world model; phase 2 needs ``init`` (a phase-1 checkpoint) unless resuming."""
     run_dir = Path(run.run_dir)
     last = check_run_dir(run)
-    start_step, init_state = 0, None
+    start_step, init_state, split = 0, None, (run.seed, run.val_ratio)
     if run.resume:
         ckpt = read_checkpoint(last, KIND, task=config.task, obs=config.obs_type)
         stored = _stored_config(ckpt, last)
@@ -111,16 +122,18 @@ def train_world_model(config: AnyWorldModelConfig, datasets: Sequence[str | os.P
             raise DataError(f"{last}: the run in {run_dir} is phase {stored.phase}, not phase {config.phase}")
         config, start_step = stored, int(ckpt.get("global_step", 0))
         init = ckpt["hyper_parameters"].get("data", {}).get("init")
+        split = split_of(ckpt["hyper_parameters"].get("data", {}), run)
     elif init is not None:
         ckpt = read_checkpoint(init, KIND, task=config.task, obs=config.obs_type)
+        split = split_of(ckpt["hyper_parameters"].get("data", {}), run)
         config = with_network_of(config, _stored_config(ckpt, Path(init)))
         init_state = {k[len("dynamics."):]: v for k, v in ckpt["state_dict"].items() if k.startswith("dynamics.")}
     elif config.phase == 2:
         raise DataError("phase 2 starts from phase-1 weights: pass init (--init PHASE1_RUN/checkpoints/last.ckpt)")
 
-    data = EpisodeDataModule(world_model_data_config(config, datasets, run))
+    data = EpisodeDataModule(world_model_data_config(config, datasets, run, split))
     config = check_observations(config, data.arrays, datasets[0])
-    record = {"datasets": [str(p) for p in datasets], "val_ratio": run.val_ratio, "seed": run.seed,
+    record = {"datasets": [str(p) for p in datasets], "val_ratio": split[1], "seed": run.seed, "split_seed": split[0],
               "init": None if init is None else str(init)}
     (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
     _write_run_record(run_dir, config, record, run)

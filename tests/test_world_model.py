@@ -130,6 +130,18 @@ def test_phase_two_starts_from_phase_one_weights(phase1, store, runs, monkeypatc
     assert want.keys() == got.keys() and all(torch.equal(want[k], got[k]) for k in want)
 
 
+def test_a_run_started_from_a_checkpoint_holds_out_its_episodes_whatever_its_seed(phase1, store, runs, monkeypatch):
+    built = []
+    monkeypatch.setattr(wmt, "fit_module", lambda module, data, *args, **kw: built.append(data) or module)
+    train_world_model(tiny(2), [store], run(runs, "p2-seed", seed=7), init=phase1.last)
+    first = EpisodeDataModule(world_model_data_config(phase1.module.config, [store], run(runs, "x")))
+    assert list(built[0].val_episodes) == list(first.val_episodes)
+    other = EpisodeDataModule(world_model_data_config(phase1.module.config, [store], run(runs, "x", seed=7)))
+    assert list(other.val_episodes) != list(first.val_episodes)  # seed 7 alone would hold out others
+    record = json.loads((runs / "p2-seed" / "run.json").read_text())
+    assert (record["seed"], record["split_seed"]) == (7, 0)
+
+
 def test_phase_two_lowers_the_unrolled_loss(phase1, phase2, store):
     batch = _batch(store, phase1.module.config)
     before, after = _loss(phase1.module, batch, 8, "state"), _loss(phase2.module, batch, 8, "state")
