@@ -48,6 +48,8 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     table = json.loads((tmp_path / "results-vision" / "pusht_vision.json").read_text())
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
     assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
+    phase2 = json.loads((tmp_path / "runs" / "wm-visual-phase2" / "run.json").read_text())
+    assert phase2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
     stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
