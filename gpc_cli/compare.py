@@ -57,7 +57,14 @@ def paired_interval(diffs: np.ndarray, level: float = 0.95) -> tuple[float, floa
 
 
 def load_run(path: Path) -> dict[str, Any]:
-    """A `gpc eval` output directory (or its first sampling seed's) as summary + per-seed rows."""
+    """A `gpc eval` output directory (or its first sampling seed's) as summary + per-seed rows.
+
+    ``A+B``: one controller evaluated on two seed ranges (two ``gpc eval`` runs) counts as one
+    run over the union of their seeds, so more seeds can be added without re-running the first;
+    its latencies and time shares are the parts' figures weighted by their seeds.
+    """
+    if not Path(path).exists() and "+" in str(path):
+        return _joined([load_run(Path(p)) for p in str(path).split("+")], str(path))
     path = Path(path)
     for d in (path, path / "sampling-seed-0"):
         if (d / "episodes.json").is_file() and (d / "summary.json").is_file():
@@ -66,6 +73,29 @@ def load_run(path: Path) -> dict[str, Any]:
             label = summary.get("controller", {}).get("controller", d.name)
             return {"path": str(path), "label": label, "summary": summary, "rows": rows}
     raise DataError(f"{path}: no gpc eval results here (episodes.json, summary.json); run `gpc eval ... --out {path}` first")
+
+
+def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
+    first = parts[0]
+    rows: dict[int, Any] = {}
+    for part in parts:
+        if part["summary"].get("controller") != first["summary"].get("controller"):
+            raise DataError(f"{path}: {part['path']} ran another controller than {first['path']}; join runs of one controller")
+        twice = sorted(set(rows) & set(part["rows"]))
+        if twice:
+            raise DataError(f"{path}: seed(s) {twice[:5]} appear in more than one part")
+        rows.update(part["rows"])
+    weights = [len(p["rows"]) / len(rows) for p in parts]
+
+    def mix(get: Any) -> float:
+        return float(sum(w * get(p["summary"]) for w, p in zip(weights, parts)))
+
+    shares = {k for p in parts for k in p["summary"].get("time_share", {})}
+    summary = {**first["summary"],
+               "decision_latency_s": {"p50": mix(lambda s: s["decision_latency_s"]["p50"])},
+               "call_latency_s": {"p50": mix(lambda s: s["call_latency_s"]["p50"])},
+               "time_share": {k: mix(lambda s, k=k: s.get("time_share", {}).get(k, 0.0)) for k in sorted(shares)}}
+    return {"path": path, "label": first["label"], "summary": summary, "rows": rows}
 
 
 def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) -> dict[str, Any]:

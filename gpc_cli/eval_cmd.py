@@ -157,7 +157,7 @@ def plan_one(
 
 
 def compare(
-    runs: List[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds)."),
+    runs: List[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds); A+B joins one controller's runs on two seed ranges."),
     baseline: Path = typer.Option(..., "--baseline", help="The BC result directory the others are paired with."),
     ceiling: Optional[Path] = typer.Option(None, "--ceiling", help="The gt-sim result: report the share of the BC-to-ceiling gap closed."),
     out: Path = typer.Option(Path("results/compare.md"), "--out", "-o", help="Markdown table to write (and .json beside it)."),

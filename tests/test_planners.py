@@ -181,6 +181,19 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
     assert (tmp_path / "cmp.png").stat().st_size > 1000
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=4", "gt-sim K=4"]
     assert table["rows"][0]["score_diff"] == 0.0
+    # More seeds later: a second range joined with '+' equals one run over both ranges (same lockstep groups).
+    for name, seeds in (("bc-more", "100003:100005"), ("bc-all", "100000:100005")):
+        res = runner.invoke(app, ["eval", ckpts["policy"], "--seeds", seeds, "--max-steps", "16", "--batch", "3",
+                                  "--out", str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+    joined = f"{tmp_path / 'bc'}+{tmp_path / 'bc-more'}"
+    res = runner.invoke(app, ["compare", joined, "--baseline", str(tmp_path / "bc-all"), "--out", str(tmp_path / "j.md")])
+    assert res.exit_code == 0, res.output
+    rows = json.loads((tmp_path / "j.json").read_text())["rows"]
+    assert rows[1]["seeds"] == 5 and rows[1]["score"] == rows[0]["score"] and rows[1]["score_diff"] == 0.0
+    res = runner.invoke(app, ["compare", f"{tmp_path / 'bc'}+{tmp_path / 'bc-all'}", "--baseline", str(tmp_path / "bc-all"),
+                              "--out", str(tmp_path / "k.md")])
+    assert res.exit_code != 0 and "appear in more than one part" in res.output and "Traceback" not in res.output
     res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100001",
                               "--max-steps", "16", "--out", str(tmp_path / "plan")])
     assert res.exit_code == 0, res.output
