@@ -1,8 +1,8 @@
 """World models on the CPU: rollout latency for K proposals of T = 16 actions, and one gradient
 step on the actions through model + reward (what GPC-OPT pays per iteration).
 
-State model (cpu profile, MLP) scored by the registration reward; visual model (cpu profile,
-EDM U-Net, frozen noise) scored by a placeholder differentiable image score (the mean pixel
+State model (cpu profile, MLP) scored by the registration reward; visual model (cpu or paper
+profile, ``--profile``, EDM U-Net, frozen noise) scored by a placeholder differentiable image score (the mean pixel
 of the final predicted frame), standing in for the learned reward. Latency does not depend on
 the weights, so untrained networks of the profiles' shapes are timed unless checkpoints are given.
 """
@@ -29,7 +29,7 @@ TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120
 GOAL = torch.tensor([256.0, 256.0, math.pi / 4])
 
 
-def _model(obs: str, checkpoint: str | None) -> WorldModelModule:
+def _model(obs: str, checkpoint: str | None, profile: str = "cpu") -> WorldModelModule:
     if checkpoint:
         return WorldModelModule.load_from_checkpoint(checkpoint)
     norm = MinMaxNormalizer()
@@ -38,7 +38,7 @@ def _model(obs: str, checkpoint: str | None) -> WorldModelModule:
         norm.add(STATE_KEY, np.zeros(5), np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi]))
         norm.add(DELTA_KEY, -np.array([10.0, 10.0, 2.0, 2.0, 0.02]), np.array([10.0, 10.0, 2.0, 2.0, 0.02]))
     torch.manual_seed(0)
-    return WorldModelModule(world_model_profile("cpu", 1, obs=obs).config, normalizer=norm).eval()
+    return WorldModelModule(world_model_profile(profile, 1, obs=obs).config, normalizer=norm).eval()
 
 
 def _inputs(model: WorldModelModule, obs: str, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -52,13 +52,14 @@ def _inputs(model: WorldModelModule, obs: str, k: int) -> tuple[torch.Tensor, to
     return history, torch.rand(k, T, 2, generator=g) * 400 + 50
 
 
-def rows_for(obs: str, checkpoint: str | None) -> list[list[str]]:
-    model = _model(obs, checkpoint)
+def rows_for(obs: str, checkpoint: str | None, profile: str = "cpu", ks: tuple[int, ...] = KS) -> list[list[str]]:
+    model = _model(obs, checkpoint, profile if obs == "image" else "cpu")
     reward = RegistrationReward(TEE, GOAL)
     params = sum(p.numel() for p in model.parameters()) / 1e6
-    label = f"{obs} ({Path(checkpoint).name if checkpoint else 'cpu profile'}, {params:.2f}M params)"
+    source = Path(checkpoint).name if checkpoint else f"{profile if obs == 'image' else 'cpu'} profile"
+    label = f"{obs} ({source}, {params:.2f}M params)"
     rows = []
-    for k in KS:
+    for k in ks:
         history, actions = _inputs(model, obs, k)
 
         def roll() -> None:
@@ -71,18 +72,18 @@ def rows_for(obs: str, checkpoint: str | None) -> list[list[str]]:
             score = reward(futures) if obs == "state" else futures[:, -1].mean(dim=(1, 2, 3))
             score.sum().backward()
 
-        repeat = 3 if obs == "image" and k == 100 else 7
+        repeat = 3 if obs == "image" and (k == 100 or profile == "paper") else 7
         number = 20 if obs == "state" else 1
         r = median_seconds(roll, number=number, repeat=repeat)
         g = median_seconds(grad_step, number=number, repeat=repeat)
-        rows.append([label, f"K={k}, T={T}", f"{r * 1e3:,.1f} ms", f"{g * 1e3:,.1f} ms"])
+        rows.append([label, f"K={k}, T={T}, frameskip {getattr(model.config.dynamics, 'frameskip', 1)}", f"{r * 1e3:,.1f} ms", f"{g * 1e3:,.1f} ms"])
     return rows
 
 
 def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None,
-        kinds: tuple[str, ...] = ("state", "image")) -> None:
+        kinds: tuple[str, ...] = ("state", "image"), profile: str = "cpu", ks: tuple[int, ...] = KS) -> None:
     checkpoints = {"state": state_checkpoint, "image": image_checkpoint}
-    rows = [row for kind in kinds for row in rows_for(kind, checkpoints[kind])]
+    rows = [row for kind in kinds for row in rows_for(kind, checkpoints[kind], profile, ks)]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     header = ["model", "setting", "rollout (median)", "grad step: model + reward (median)"]
     show(f"World model rollouts, {torch.get_num_threads()} threads (load {load:.1f})", header, rows)
@@ -96,9 +97,11 @@ if __name__ == "__main__":
     parser.add_argument("--state-checkpoint", default=None)
     parser.add_argument("--image-checkpoint", default=None)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--profile", choices=("cpu", "paper"), default="cpu", help="visual model profile (untrained)")
+    parser.add_argument("--ks", default=",".join(map(str, KS)), help="proposal counts, comma-separated")
     parser.add_argument("--obs", choices=("state", "image", "both"), default="both", help="which world models to time")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     run(args.readme, args.state_checkpoint, args.image_checkpoint,
-        ("state", "image") if args.obs == "both" else (args.obs,))
+        ("state", "image") if args.obs == "both" else (args.obs,), args.profile, tuple(int(k) for k in args.ks.split(",")))
