@@ -2,8 +2,8 @@
 step on the actions through model + reward (what GPC-OPT pays per iteration).
 
 State model (cpu profile, MLP) scored by the registration reward; visual model (cpu or paper
-profile, ``--profile``, EDM U-Net, frozen noise) scored by a placeholder differentiable image score (the mean pixel
-of the final predicted frame), standing in for the learned reward. Latency does not depend on
+profile, ``--profile``, EDM U-Net, frozen noise) scored by a placeholder differentiable image
+score (the mean pixel of the final predicted frame), standing in for the learned reward. Latency does not depend on
 the weights, so untrained networks of the profiles' shapes are timed unless checkpoints are given.
 """
 

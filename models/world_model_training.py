@@ -1,9 +1,9 @@
 """One world-model training run (phase 1 or 2) through the shared loop of ``models.training``.
 
 Same run directory layout, resume and NaN handling as the policy's, for state and visual
-world models alike. Phase 2 starts from a phase-1 checkpoint (``init``): its network config, held-out episodes,
-normaliser and weights are taken as they are, with a fresh optimiser and phase 2's own
-schedule. ``find_phase_one`` finds that checkpoint beside a phase-2 run directory.
+world models alike. Phase 2 starts from a phase-1 checkpoint (``init``): its network config,
+held-out episodes, normaliser and weights are taken as they are, with a fresh optimiser and
+phase 2's own schedule. ``find_phase_one`` finds that checkpoint beside a phase-2 run directory.
 
 A visual model records the frame size of its training stores (``source_size``); a store of
 another size is resized to the model's resolution with a warning.
