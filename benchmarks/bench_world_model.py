@@ -53,10 +53,11 @@ def _inputs(model: WorldModelModule, obs: str, k: int) -> tuple[torch.Tensor, to
 
 
 def rows_for(obs: str, checkpoint: str | None, profile: str = "cpu", ks: tuple[int, ...] = KS) -> list[list[str]]:
-    model = _model(obs, checkpoint, profile if obs == "image" else "cpu")
+    profile = profile if obs == "image" else "cpu"  # the state model has one profile
+    model = _model(obs, checkpoint, profile)
     reward = RegistrationReward(TEE, GOAL)
     params = sum(p.numel() for p in model.parameters()) / 1e6
-    source = Path(checkpoint).name if checkpoint else f"{profile if obs == 'image' else 'cpu'} profile"
+    source = Path(checkpoint).name if checkpoint else f"{profile} profile"
     label = f"{obs} ({source}, {params:.2f}M params)"
     rows = []
     for k in ks:

@@ -9,6 +9,7 @@ step of every episode is seen as the "current" observation at least once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -60,3 +61,19 @@ def split_episodes(n_episodes: int, val_ratio: float, seed: int) -> tuple[np.nda
     val = np.sort(rng.choice(n_episodes, size=n_val, replace=False)) if n_val else np.zeros(0, np.int64)
     train = np.setdiff1d(np.arange(n_episodes), val)
     return train, val
+
+
+def recorded_split(record: dict[str, Any]) -> tuple[int, float] | None:
+    """(seed, val ratio) of the split a run record describes (``split_seed`` once a run was started
+    from a checkpoint and kept its split; ``seed`` before); None when it records none."""
+    if "val_ratio" not in record:
+        return None
+    return int(record.get("split_seed", record["seed"])), float(record["val_ratio"])
+
+
+def recorded_held_out(n_episodes: int, record: dict[str, Any]) -> np.ndarray:
+    """The episodes a run record held out from training."""
+    split = recorded_split(record)
+    if split is None:
+        raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
+    return split_episodes(n_episodes, split[1], split[0])[1]

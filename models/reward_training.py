@@ -23,7 +23,7 @@ from lightning.pytorch.utilities import rank_zero_only
 
 from datasets.datamodule import DataConfig, EpisodeDataModule
 from datasets.errors import DataError
-from datasets.sequence import split_episodes
+from datasets.sequence import recorded_held_out
 from datasets.store import EpisodeStore
 from models.checkpoint import read_checkpoint
 from models.reward_predictor import (
@@ -85,9 +85,7 @@ def _episodes(datasets: Sequence[str | os.PathLike], split: str, record: dict[st
     pairs = [(s, i) for s in stores for i in range(s.n_episodes)]
     if split == "all":
         return pairs
-    if "val_ratio" not in record:
-        raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
-    _, chosen = split_episodes(len(pairs), float(record["val_ratio"]), int(record["seed"]))
+    chosen = recorded_held_out(len(pairs), record)
     if len(chosen) == 0:
         raise DataError("the predictor was trained without held-out episodes; pass --split all with a separate store")
     return [pairs[i] for i in chosen]

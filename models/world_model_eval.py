@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from datasets.errors import DataError
-from datasets.sequence import WindowSpec, split_episodes, window_indices, window_starts
+from datasets.sequence import WindowSpec, recorded_held_out, window_indices, window_starts
 from datasets.windows import load_stores
 from models.reward import registration_distance
 from models.world_model import ACTION_KEY, STATE_KEY, WorldModelModule, wrap_angle
@@ -69,10 +69,7 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
     h, t = module.n_obs_steps, horizon or module.config.horizon
     arrays = load_stores([str(p) for p in datasets], tuple(keys))
     if split == "val":
-        record = module.data_record
-        if "val_ratio" not in record:
-            raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
-        _, chosen = split_episodes(arrays.n_episodes, float(record["val_ratio"]), int(record.get("split_seed", record["seed"])))
+        chosen = recorded_held_out(arrays.n_episodes, module.data_record)
         if len(chosen) == 0:
             raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
     else:

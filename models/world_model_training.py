@@ -25,6 +25,7 @@ from lightning.pytorch.utilities import rank_zero_only
 from datasets.datamodule import DataConfig, EpisodeDataModule
 from datasets.errors import DataError
 from datasets.normalizer import MinMaxNormalizer
+from datasets.sequence import recorded_split
 from models.checkpoint import read_checkpoint
 from models.training import LAST, RunConfig, TrainResult, check_run_dir, fit_module
 from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule, delta_statistics
@@ -63,14 +64,6 @@ def find_phase_one(out: str | os.PathLike) -> Path:
         f"phase 2 starts from phase-1 weights and found none (looked for {', '.join(map(str, candidates))}); "
         "pass --init PHASE1_RUN/checkpoints/last.ckpt"
     )
-
-
-def split_of(record: dict[str, Any], run: RunConfig) -> tuple[int, float]:
-    """(seed, val ratio) of the episodes a checkpoint held out, so that a run started from it
-    holds out the same ones whatever its own seed (else its "held-out" episodes were trained on)."""
-    if "val_ratio" not in record:
-        return run.seed, run.val_ratio
-    return int(record.get("split_seed", record["seed"])), float(record["val_ratio"])
 
 
 def _stored_config(ckpt: dict[str, Any], path: Path) -> AnyWorldModelConfig:
@@ -114,7 +107,7 @@ def train_world_model(config: AnyWorldModelConfig, datasets: Sequence[str | os.P
     """Train (or resume) a state or visual world model; phase 2 needs ``init`` (a phase-1 checkpoint) unless resuming."""
     run_dir = Path(run.run_dir)
     last = check_run_dir(run)
-    start_step, init_state, split = 0, None, (run.seed, run.val_ratio)
+    start_step, init_state, ckpt = 0, None, None
     if run.resume:
         ckpt = read_checkpoint(last, KIND, task=config.task, obs=config.obs_type)
         stored = _stored_config(ckpt, last)
@@ -122,15 +115,16 @@ def train_world_model(config: AnyWorldModelConfig, datasets: Sequence[str | os.P
             raise DataError(f"{last}: the run in {run_dir} is phase {stored.phase}, not phase {config.phase}")
         config, start_step = stored, int(ckpt.get("global_step", 0))
         init = ckpt["hyper_parameters"].get("data", {}).get("init")
-        split = split_of(ckpt["hyper_parameters"].get("data", {}), run)
     elif init is not None:
         ckpt = read_checkpoint(init, KIND, task=config.task, obs=config.obs_type)
-        split = split_of(ckpt["hyper_parameters"].get("data", {}), run)
         config = with_network_of(config, _stored_config(ckpt, Path(init)))
         init_state = {k[len("dynamics."):]: v for k, v in ckpt["state_dict"].items() if k.startswith("dynamics.")}
     elif config.phase == 2:
         raise DataError("phase 2 starts from phase-1 weights: pass init (--init PHASE1_RUN/checkpoints/last.ckpt)")
 
+    # A run started from a checkpoint holds out the episodes it held out, whatever its own seed:
+    # otherwise its "held-out" episodes would have been trained on.
+    split = (recorded_split(ckpt["hyper_parameters"].get("data", {})) if ckpt else None) or (run.seed, run.val_ratio)
     data = EpisodeDataModule(world_model_data_config(config, datasets, run, split))
     config = check_observations(config, data.arrays, datasets[0])
     record = {"datasets": [str(p) for p in datasets], "val_ratio": split[1], "seed": run.seed, "split_seed": split[0],
