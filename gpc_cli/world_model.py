@@ -7,6 +7,7 @@ command fills the visual readout (block and agent colours, the T's axis) from th
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -40,8 +41,6 @@ def train(
     options: dict | None = None,
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
-    import dataclasses
-
     from models.world_model_config import FEEDBACK, OBS_TYPES, world_model_profile
     from models.world_model_training import find_phase_one, train_world_model
 
@@ -74,6 +73,7 @@ def evaluate(
     stride: Optional[int] = typer.Option(None, "--stride", min=1, help="Steps between window starts (default: 1 for state, 8 for image models)."),
     max_windows: int = typer.Option(512, "--max-windows", min=1, help="Image models: at most this many windows, evenly spread."),
     noise: str = typer.Option("frozen", "--noise", help="Image models: frozen (deterministic) or sampled initial noise."),
+    sampler_steps: Optional[int] = typer.Option(None, "--sampler-steps", min=1, help="Image models: Euler steps per predicted frame (default: the checkpoint's, 3)."),
     pose_reader: Optional[Path] = typer.Option(None, "--pose-reader", help="Image models: read the block pose with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for world_model_eval.json and .md (default: the run's eval/)."),
 ) -> None:
@@ -99,6 +99,8 @@ def evaluate(
 
         if noise not in NOISE_MODES:
             raise typer.BadParameter(f"noise {noise!r}: use one of {', '.join(NOISE_MODES)}", param_hint="--noise")
+        if sampler_steps is not None:
+            module.dynamics.use_sampler(dataclasses.replace(module.dynamics.config.sampler, steps=sampler_steps))
         readout = frame_readout(module.config.task)
         if pose_reader is not None:
             from models.reward_predictor import RewardPredictorModule
@@ -114,9 +116,9 @@ def evaluate(
         cv2.imwrite(str(out / "world_model_frames.png"), grid[..., ::-1])
         extra = f", {out / 'world_model_frames.png'}"
     else:
-        if pose_reader is not None:
-            raise typer.BadParameter("applies to image world models (a state model predicts the pose itself)",
-                                     param_hint="--pose-reader")
+        for value, hint in ((pose_reader, "--pose-reader"), (sampler_steps, "--sampler-steps")):
+            if value is not None:
+                raise typer.BadParameter("applies to image world models only", param_hint=hint)
         geometry = get_task(module.config.task).geometry
         report = evaluate_rollouts(module, dataset, split=split, episodes=episodes, horizon=horizon,
                                    vertices=geometry.TEE_BOXES.reshape(-1, 2), stride=stride or 1)

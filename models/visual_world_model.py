@@ -17,6 +17,7 @@ differentiable function of the actions; sampled noise draws the chains' starts.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from contextlib import nullcontext
 from typing import Any, Mapping
@@ -26,7 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from datasets.normalizer import MinMaxNormalizer
-from models.edm import Denoiser, EulerSampler
+from models.edm import Denoiser, EulerConfig, EulerSampler
 from models.unet2d import InnerUNet
 from models.world_model_config import FEEDBACK, IMAGE_KEY, VisualDynamicsConfig, VisualWorldModelConfig
 
@@ -59,6 +60,11 @@ class VisualDynamics(nn.Module):
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s * (hi - lo) + lo  # pixel centres in action units
         self.register_buffer("pixel_centres", centres, persistent=False)
         self._warned: set[int] = set()
+
+    def use_sampler(self, sampler: EulerConfig) -> None:
+        """Samples with another Euler chain (e.g. more steps) without retraining: the denoiser is unchanged."""
+        self.config = dataclasses.replace(self.config, sampler=sampler)
+        self.sampler = EulerSampler(self.denoiser, sampler)
 
     @property
     def n_obs_steps(self) -> int:

@@ -169,6 +169,7 @@ def evaluate_visual_rollouts(
     report: dict[str, Any] = {
         "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(len(idx)),
         "history": n0, "horizon": t, "frameskip": f, "resolution": c.resolution, "noise": noise,
+        "sampler": asdict(dyn.config.sampler),
         "config": module.config.to_dict(),
         "steps": [{"step": i + 1, "actions": int((i + 1) * f), **{name: {m: merged[name][m][i] for m in merged[name]}
                                                                     for name in merged}} for i in range(steps)],
@@ -194,8 +195,12 @@ def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndar
         out["per_step"][name] = {"object_units": np.nanmean(pos, axis=0).tolist(), "object_deg": np.nanmean(ang, axis=0).tolist(),
                                  "object_lost": lost.mean(axis=0).tolist()}
         if moving.any():
+            final_ang = ang[moving, -1]
             out["final_moving"][name] = {"object_units": float(np.nanmean(pos[moving, -1])),
-                                         "object_deg": float(np.nanmean(ang[moving, -1])),
+                                         "object_deg": float(np.nanmean(final_ang)),
+                                         "object_units_median": float(np.nanmedian(pos[moving, -1])),
+                                         "object_deg_median": float(np.nanmedian(final_ang)),
+                                         "object_deg_over_90": float(np.mean(final_ang > 90.0)),
                                          "object_lost": float(lost[moving, -1].mean())}
     true_area = readout.agent_area(true.reshape((-1,) + true.shape[2:]))
     threshold = max(1.0, readout.agent_min_share * float(np.median(true_area)))
@@ -234,7 +239,7 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; {report['resolution']} px, "
-        f"frameskip {report['frameskip']}, {report['noise']} noise. Each cell: model / nothing-moves baseline "
+        f"frameskip {report['frameskip']}, {report['noise']} noise, {report['sampler']['steps']} Euler steps. Each cell: model / nothing-moves baseline "
         "(SSIM, PSNR: higher is better; pose errors: lower)."
         + (f" Object pose read by {'colour' if report['readout_config']['pose'] == 'colour' else 'the learned pose predictor'}."
            if ro else ""), "",
@@ -253,6 +258,8 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
         lines += ["", f"Final frame, {ro['moving_windows']} windows where the object moves: position error "
                   f"{fm['model']['object_units']:.1f} vs {fm['baseline']['object_units']:.1f} (ratio "
                   f"{fm['ratio']['object_units']:.2f}), angle error {fm['model']['object_deg']:.1f} vs "
-                  f"{fm['baseline']['object_deg']:.1f} deg (ratio {fm['ratio']['object_deg']:.2f}); agent visible in "
+                  f"{fm['baseline']['object_deg']:.1f} deg (ratio {fm['ratio']['object_deg']:.2f}; medians "
+                  f"{fm['model']['object_deg_median']:.1f} vs {fm['baseline']['object_deg_median']:.1f}, off by more than "
+                  f"90 deg in {fm['model']['object_deg_over_90']:.0%} vs {fm['baseline']['object_deg_over_90']:.0%}); agent visible in "
                   f"{ro['agent_visible']['model']:.0%} of predicted frames ({ro['agent_visible']['true']:.0%} of recorded ones)."]
     return "\n".join(lines) + "\n"

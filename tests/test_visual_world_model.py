@@ -216,6 +216,11 @@ def test_eval_reports_figures_and_a_grid(phase2, store):
             assert 0.0 < row[name]["ssim"] <= 1.0 and row[name]["psnr"] > 5.0
     ro = report["readout"]
     assert ro["moving_windows"] > 0 and ro["final_moving"]["baseline"]["object_units"] > 5.0
+    for name in ("model", "baseline"):  # a briefly trained 16 px model may lose the block (NaN poses) in every frame
+        final = ro["final_moving"][name]
+        assert final["object_lost"] == 1.0 or 0.0 <= final["object_deg_median"] <= 180.0
+        assert 0.0 <= final["object_deg_over_90"] <= 1.0
+    assert ro["final_moving"]["baseline"]["object_lost"] == 0.0
     assert 0.0 <= ro["agent_visible"]["model"] <= 1.0 and 0.0 <= ro["agent_visible"]["true"] <= 1.0  # at 16 px the agent is
     assert len(ro["agent_visible"]["per_step"]) == 2  # half a pixel wide: its visibility is checked at 96 px below
     assert grid.shape == (2 * (2 * (16 * 3 + 2) + 2), 3 * (16 * 3 + 2), 3) and grid.dtype == np.uint8
@@ -277,6 +282,14 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path):
     out = tmp_path / "vwm-phase2" / "eval"
     report = json.loads((out / "world_model_eval.json").read_text())
     assert report["episodes"] == 2 and report["checkpoint"] == str(last) and len(report["steps"]) == 2
+    assert report["sampler"]["steps"] == 3 and "3 Euler steps" in ev.output
+    longer = cli.invoke(world_model_app, ["eval", str(last), "--dataset", str(store), "--split", "all", "--episodes", "2",
+                                          "--stride", "6", "--sampler-steps", "5", "--out", str(tmp_path / "eval5")])
+    assert longer.exit_code == 0, longer.output
+    five = json.loads((tmp_path / "eval5" / "world_model_eval.json").read_text())
+    assert five["sampler"]["steps"] == 5 and five["windows"] == report["windows"]
+    assert five["steps"][0]["model"]["ssim"] != report["steps"][0]["model"]["ssim"]  # another chain, another frame
+    assert five["steps"][0]["baseline"] == report["steps"][0]["baseline"]
     assert "| 2 (4) |" in ev.output and (out / "world_model_frames.png").stat().st_size > 100
     import cv2
 

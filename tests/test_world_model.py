@@ -269,6 +269,8 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path, phase1):
     report = json.loads((tmp_path / "wm-phase2" / "eval" / "world_model_eval.json").read_text())
     assert report["episodes"] == 1 and report["checkpoint"] == str(last) and len(report["steps"]) == 8
     assert "| 8 |" in ev.output and (tmp_path / "wm-phase2" / "eval" / "world_model_eval.md").is_file()
+    image_only = cli.invoke(world_model_app, ["eval", str(last), "--dataset", str(store), "--sampler-steps", "5"])
+    assert image_only.exit_code == 2 and "--sampler-steps" in image_only.output and "image world models only" in image_only.output
 
 
 def test_phase_one_trains_on_the_human_data(human_data, tmp_path):
