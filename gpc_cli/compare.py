@@ -129,7 +129,16 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
             row["gap_closed_score"] = float(d / gap) if gap > 0 else float("nan")
             row["gap_closed_success"] = float(ds / gap_s) if gap_s > 0 else float("nan")
         table.append(row)
+    _tell_apart(table)
     return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "rows": table}
+
+
+def _tell_apart(rows: list[dict[str, Any]]) -> None:
+    """Two runs of one controller (e.g. with two world models) would share a label: name each by its results folder."""
+    labels = [r["label"] for r in rows]
+    for r in rows[1:]:  # the baseline keeps its label (the paper's column and the plot key on it)
+        if labels.count(r["label"]) > 1:
+            r["label"] = f"{r['label']} ({Path(r['path'].split('+')[0]).parent.name})"
 
 
 def _pct(x: float) -> str:

@@ -191,6 +191,7 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
     assert res.exit_code == 0, res.output
     rows = json.loads((tmp_path / "j.json").read_text())["rows"]
     assert rows[1]["seeds"] == 5 and rows[1]["score"] == rows[0]["score"] and rows[1]["score_diff"] == 0.0
+    assert rows[0]["label"] == "bc" and rows[1]["label"] == f"bc ({tmp_path.name})"  # one controller twice: told apart
     res = runner.invoke(app, ["compare", f"{tmp_path / 'bc'}+{tmp_path / 'bc-all'}", "--baseline", str(tmp_path / "bc-all"),
                               "--out", str(tmp_path / "k.md")])
     assert res.exit_code != 0 and "appear in more than one part" in res.output and "Traceback" not in res.output
