@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -170,7 +170,7 @@ def evaluate_visual_rollouts(
         "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(len(idx)),
         "history": n0, "horizon": t, "frameskip": f, "resolution": c.resolution, "noise": noise,
         "sampler": asdict(dyn.config.sampler),
-        "config": module.config.to_dict(),
+        "config": replace(module.config, dynamics=dyn.config).to_dict(),  # the chain actually sampled (--sampler-steps)
         "steps": [{"step": i + 1, "actions": int((i + 1) * f), **{name: {m: merged[name][m][i] for m in merged[name]}
                                                                     for name in merged}} for i in range(steps)],
     }

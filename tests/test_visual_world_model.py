@@ -288,6 +288,7 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path):
     assert longer.exit_code == 0, longer.output
     five = json.loads((tmp_path / "eval5" / "world_model_eval.json").read_text())
     assert five["sampler"]["steps"] == 5 and five["windows"] == report["windows"]
+    assert five["config"]["dynamics"]["sampler"]["steps"] == 5  # the recorded config says what was sampled
     assert five["steps"][0]["model"]["ssim"] != report["steps"][0]["model"]["ssim"]  # another chain, another frame
     assert five["steps"][0]["baseline"] == report["steps"][0]["baseline"]
     assert "| 2 (4) |" in ev.output and (out / "world_model_frames.png").stat().st_size > 100
