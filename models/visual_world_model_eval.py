@@ -50,6 +50,7 @@ class ColourReadout:
     agent_min_share: float = 0.3  # agent visible: at least this share of its median area in the recorded frames
     moved_units: float = 5.0  # the object "moves" when its centroid shifts by more than this (extent units) ...
     moved_deg: float = 5.0  # ... or it turns by more than this
+    vertices: tuple[tuple[float, float], ...] = ()  # the object's outline about the pose read (its centroid); () skips the vertex error
 
     def masks(self, frames: np.ndarray, colours: tuple[Colour, ...]) -> np.ndarray:
         """``(N, S, S, 3)`` uint8 -> ``(N, S, S)`` bool."""
@@ -92,8 +93,10 @@ class LearnedPoseReadout:
     scoring with it actually faces; colour segmentation mistakes a blurred T for a turned one.
     """
 
-    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256) -> None:
+    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256,
+                 vertices: tuple[tuple[float, float], ...] = ()) -> None:
         self.colour, self.predictor, self.source, self.batch_size = colour, predictor.eval(), source, batch_size
+        self.vertices = vertices  # about the body origin: the predictor reads the recorded (state) pose
         self.moved_units, self.moved_deg, self.agent_min_share = colour.moved_units, colour.moved_deg, colour.agent_min_share
         self.agent_area = colour.agent_area
 
@@ -105,7 +108,7 @@ class LearnedPoseReadout:
         return torch.cat(parts).double().numpy() if parts else np.zeros((0, 3))
 
     def describe(self) -> dict[str, Any]:
-        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour)}
+        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour), "vertices": self.vertices}
 
 
 def _uint8(frames: torch.Tensor) -> np.ndarray:
@@ -122,11 +125,22 @@ def _image_scores(pred: torch.Tensor, true: torch.Tensor) -> dict[str, torch.Ten
     return {"ssim": ssim.reshape(n, t), "psnr": (-10.0 * torch.log10(mse)).reshape(n, t)}
 
 
-def _pose_errors(pred: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(..., 3)`` poses -> (position error, angle error in degrees); a missing prediction counts as NaN."""
-    pos = np.linalg.norm(pred[..., :2] - true[..., :2], axis=-1)
-    ang = np.abs((pred[..., 2] - true[..., 2] + np.pi) % (2 * np.pi) - np.pi) * (180.0 / np.pi)
-    return pos, ang
+def _pose_errors(pred: np.ndarray, true: np.ndarray, vertices: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """``(..., 3)`` poses -> position error, angle error (degrees) and, given the object's ``(V, 2)`` outline, the
+    mean distance between its vertices placed at both poses (ADD: position and angle in one length, what the
+    registration reward compares); a missing prediction counts as NaN."""
+    out = {"object_units": np.linalg.norm(pred[..., :2] - true[..., :2], axis=-1),
+           "object_deg": np.abs((pred[..., 2] - true[..., 2] + np.pi) % (2 * np.pi) - np.pi) * (180.0 / np.pi)}
+    if vertices is not None and len(vertices):
+        out["object_vertex_units"] = np.linalg.norm(_place(vertices, pred) - _place(vertices, true), axis=-1).mean(axis=-1)
+    return out
+
+
+def _place(vertices: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """``(V, 2)`` outline, ``(..., 3)`` poses -> ``(..., V, 2)``."""
+    c, s = np.cos(poses[..., 2])[..., None], np.sin(poses[..., 2])[..., None]
+    x, y = vertices[:, 0], vertices[:, 1]
+    return np.stack([c * x - s * y, s * x + c * y], axis=-1) + poses[..., None, :2]
 
 
 @torch.no_grad()
@@ -186,21 +200,20 @@ def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndar
     n, t = model.shape[:2]
     pose = {k: readout.object_pose(v.reshape((-1,) + v.shape[2:])).reshape(n, t, 3) for k, v in (("model", model), ("true", true))}
     pose["baseline"] = np.repeat(readout.object_pose(last)[:, None], t, axis=1)
-    moved_pos, moved_ang = _pose_errors(pose["baseline"][:, -1], pose["true"][:, -1])
-    moving = (moved_pos > readout.moved_units) | (moved_ang > readout.moved_deg)
+    vertices = np.asarray(readout.vertices, dtype=np.float64).reshape(-1, 2)
+    moved = _pose_errors(pose["baseline"][:, -1], pose["true"][:, -1])
+    moving = (moved["object_units"] > readout.moved_units) | (moved["object_deg"] > readout.moved_deg)
     out: dict[str, Any] = {"moving_windows": int(moving.sum()), "per_step": {}, "final_moving": {}}
     for name in ("model", "baseline"):
-        pos, ang = _pose_errors(pose[name], pose["true"])
-        lost = np.isnan(pos)
-        out["per_step"][name] = {"object_units": np.nanmean(pos, axis=0).tolist(), "object_deg": np.nanmean(ang, axis=0).tolist(),
+        errors = _pose_errors(pose[name], pose["true"], vertices)
+        lost = np.isnan(errors["object_units"])
+        out["per_step"][name] = {**{k: np.nanmean(v, axis=0).tolist() for k, v in errors.items()},
                                  "object_lost": lost.mean(axis=0).tolist()}
         if moving.any():
-            final_ang = ang[moving, -1]
-            out["final_moving"][name] = {"object_units": float(np.nanmean(pos[moving, -1])),
-                                         "object_deg": float(np.nanmean(final_ang)),
-                                         "object_units_median": float(np.nanmedian(pos[moving, -1])),
-                                         "object_deg_median": float(np.nanmedian(final_ang)),
-                                         "object_deg_over_90": float(np.mean(final_ang > 90.0)),
+            final = {k: v[moving, -1] for k, v in errors.items()}
+            out["final_moving"][name] = {**{k: float(np.nanmean(v)) for k, v in final.items()},
+                                         **{f"{k}_median": float(np.nanmedian(v)) for k, v in final.items()},
+                                         "object_deg_over_90": float(np.mean(final["object_deg"] > 90.0)),
                                          "object_lost": float(lost[moving, -1].mean())}
     true_area = readout.agent_area(true.reshape((-1,) + true.shape[2:]))
     threshold = max(1.0, readout.agent_min_share * float(np.median(true_area)))
@@ -209,7 +222,8 @@ def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndar
                             "per_step": (area >= threshold).mean(axis=0).tolist(), "min_pixels": threshold}
     if moving.any():
         m, b = out["final_moving"]["model"], out["final_moving"]["baseline"]
-        out["final_moving"]["ratio"] = {k: m[k] / b[k] if b[k] > 0 else float("nan") for k in ("object_units", "object_deg")}
+        out["final_moving"]["ratio"] = {k: m[k] / b[k] if b[k] > 0 else float("nan")
+                                        for k in ("object_units", "object_deg", "object_vertex_units") if k in m}
     return out
 
 
@@ -235,7 +249,9 @@ def frame_grid(last: np.ndarray, true: np.ndarray, pred: np.ndarray, scale: int 
 def visual_markdown_table(report: dict[str, Any], title: str = "Visual world model rollouts") -> str:
     """One row per predicted frame: SSIM and PSNR (and object pose errors, agent visibility) as model / baseline."""
     ro = report.get("readout")
-    head = ["step (actions)", "SSIM", "PSNR dB"] + (["object units", "object deg", "agent visible"] if ro else [])
+    vertex = bool(ro) and "object_vertex_units" in ro["per_step"]["model"]
+    head = ["step (actions)", "SSIM", "PSNR dB"] + (["object units", "object deg"] + (["object vertices"] if vertex else [])
+                                                    + ["agent visible"] if ro else [])
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; {report['resolution']} px, "
@@ -250,8 +266,8 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
                  f"{row['model']['psnr']:.1f} / {row['baseline']['psnr']:.1f}"]
         if ro:
             m, b = ro["per_step"]["model"], ro["per_step"]["baseline"]
-            cells += [f"{m['object_units'][i]:.1f} / {b['object_units'][i]:.1f}",
-                      f"{m['object_deg'][i]:.1f} / {b['object_deg'][i]:.1f}", f"{ro['agent_visible']['per_step'][i]:.2f}"]
+            cells += [f"{m[k][i]:.1f} / {b[k][i]:.1f}" for k in ("object_units", "object_deg") + (("object_vertex_units",) if vertex else ())]
+            cells.append(f"{ro['agent_visible']['per_step'][i]:.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     if ro and ro["final_moving"]:
         fm = ro["final_moving"]
@@ -260,6 +276,11 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
                   f"{fm['ratio']['object_units']:.2f}), angle error {fm['model']['object_deg']:.1f} vs "
                   f"{fm['baseline']['object_deg']:.1f} deg (ratio {fm['ratio']['object_deg']:.2f}; medians "
                   f"{fm['model']['object_deg_median']:.1f} vs {fm['baseline']['object_deg_median']:.1f}, off by more than "
-                  f"90 deg in {fm['model']['object_deg_over_90']:.0%} vs {fm['baseline']['object_deg_over_90']:.0%}); agent visible in "
+                  f"90 deg in {fm['model']['object_deg_over_90']:.0%} vs {fm['baseline']['object_deg_over_90']:.0%}); "
+                  + (f"vertex error (position and angle in one length) {fm['model']['object_vertex_units']:.1f} vs "
+                     f"{fm['baseline']['object_vertex_units']:.1f} (ratio {fm['ratio']['object_vertex_units']:.2f}; medians "
+                     f"{fm['model']['object_vertex_units_median']:.1f} vs {fm['baseline']['object_vertex_units_median']:.1f}); "
+                     if vertex else "")
+                  + "agent visible in "
                   f"{ro['agent_visible']['model']:.0%} of predicted frames ({ro['agent_visible']['true']:.0%} of recorded ones)."]
     return "\n".join(lines) + "\n"

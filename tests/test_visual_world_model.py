@@ -221,6 +221,8 @@ def test_eval_reports_figures_and_a_grid(phase2, store):
         assert final["object_lost"] == 1.0 or 0.0 <= final["object_deg_median"] <= 180.0
         assert 0.0 <= final["object_deg_over_90"] <= 1.0
     assert ro["final_moving"]["baseline"]["object_lost"] == 0.0
+    base = ro["final_moving"]["baseline"]  # the vertex error joins position and angle: at least the centroid's shift
+    assert base["object_vertex_units"] >= base["object_units"] - 1e-9 > 0 and "object_vertex_units" in ro["final_moving"]["ratio"]
     assert 0.0 <= ro["agent_visible"]["model"] <= 1.0 and 0.0 <= ro["agent_visible"]["true"] <= 1.0  # at 16 px the agent is
     assert len(ro["agent_visible"]["per_step"]) == 2  # half a pixel wide: its visibility is checked at 96 px below
     assert grid.shape == (2 * (2 * (16 * 3 + 2) + 2), 3 * (16 * 3 + 2), 3) and grid.dtype == np.uint8
@@ -236,6 +238,11 @@ def test_readout_reads_the_block_pose_from_rendered_frames():
     turn = np.abs((pose[:, 2] - states[:, 4] + np.pi) % (2 * np.pi) - np.pi)
     assert turn.max() < np.deg2rad(3)
     readout = frame_readout("pusht")
+    # Its vertices sit about the centroid it reads: placed at the read pose they land on the T's true vertices.
+    from tasks.pusht.geometry import tee_vertices, to_world
+
+    read = to_world(np.asarray(readout.vertices), pose)
+    assert np.abs(read - tee_vertices(states[:, 2:5]).reshape(len(states), 8, 2)).max() < 4.0
     assert (readout.agent_area(frames) > 20).all()  # the agent's disc, about 5 px across at 96 px
     empty = np.full_like(frames[:1], 255)
     assert readout.agent_area(empty)[0] == 0 and np.isnan(readout.object_pose(empty)).all()

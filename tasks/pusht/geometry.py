@@ -22,6 +22,8 @@ TEE_BOXES = np.array(
     ]
 )
 TEE_AREA = 120.0 * 30.0 + 30.0 * 90.0
+# Its area centroid in block coordinates (each box weighted by its area): where a colour segmentation finds it.
+TEE_CENTROID = sum(box.mean(axis=0) * np.ptp(box[:, 0]) * np.ptp(box[:, 1]) for box in TEE_BOXES) / TEE_AREA
 
 # Diffusion Policy's 9 block keypoints in block coordinates. Its keypoint manager draws them
 # once by farthest-point sampling on a rendered mask (plus a random shift); these values are
