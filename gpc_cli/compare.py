@@ -134,11 +134,19 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
 
 
 def _tell_apart(rows: list[dict[str, Any]]) -> None:
-    """Two runs of one controller (e.g. with two world models) would share a label: name each by its results folder."""
+    """Two runs of one controller (e.g. with two world models) would share a label: name each by its results
+    folder, or by its own folder's name where they share the results folder."""
     labels = [r["label"] for r in rows]
-    for r in rows[1:]:  # the baseline keeps its label (the paper's column and the plot key on it)
-        if labels.count(r["label"]) > 1:
-            r["label"] = f"{r['label']} ({Path(r['path'].split('+')[0]).parent.name})"
+    for label in set(labels):
+        group = [r for r in rows[1:] if r["label"] == label]  # the baseline keeps its label (the paper's column keys on it)
+        if labels.count(label) < 2 or not group:
+            continue
+        paths = [Path(r["path"].split("+")[0]) for r in group]
+        names = [p.parent.name for p in paths]
+        if len(set(names)) < len(names):
+            names = [p.name for p in paths]
+        for r, name in zip(group, names):
+            r["label"] = f"{label} ({name})"
 
 
 def _pct(x: float) -> str:

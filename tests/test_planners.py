@@ -201,6 +201,15 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
     assert (tmp_path / "plan" / "seed100001.mp4").stat().st_size > 1000
 
 
+def test_compare_tells_apart_runs_of_one_controller():
+    from gpc_cli.compare import _tell_apart
+
+    rows = [{"label": "bc", "path": "r/a/bc"}, {"label": "rank K=8", "path": "r/a/rank"}, {"label": "rank K=8", "path": "r/b/rank"},
+            {"label": "opt M=5", "path": "r/a/opt"}, {"label": "opt M=5", "path": "r/a/opt-wm2+r/c/opt-wm2"}]
+    _tell_apart(rows)  # by results folder; by the run's own folder where they share the results folder
+    assert [r["label"] for r in rows] == ["bc", "rank K=8 (a)", "rank K=8 (b)", "opt M=5 (opt)", "opt M=5 (opt-wm2)"]
+
+
 @pytest.mark.parametrize("args,expect", [
     (["--planner", "opt", "-K", "5"], "--K 5: opt refines one proposal"),
     (["--planner", "rank"], "--planner rank needs --world-model"),
