@@ -107,9 +107,7 @@ def evaluate(
             from models.visual_world_model_eval import LearnedPoseReadout
 
             predictor = RewardPredictorModule.load_from_checkpoint(pose_reader, task=module.config.task).predictor
-            from tasks.pusht import geometry
-
-            readout = LearnedPoseReadout(readout, predictor, str(pose_reader), vertices=_points(geometry.TEE_BOXES.reshape(-1, 2)))
+            readout = LearnedPoseReadout(readout, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, dataset, split=split, episodes=episodes, horizon=horizon,
                                                 readout=readout, stride=stride or 8,
                                                 max_windows=max_windows, noise=noise)
@@ -140,16 +138,12 @@ def frame_readout(task: str):
         raise typer.BadParameter(f"no frame readout for task {task!r}", param_hint="--task")
     from tasks.pusht import geometry, render
 
-    # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2. Colour finds
-    # the T's centroid, not its body origin, so its vertices for the vertex error are taken about the centroid.
+    # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2.
     return ColourReadout(object_colours=(render.BLOCK_FILL, render.BLOCK_EDGE),
                          agent_colours=(render.AGENT_FILL, render.AGENT_EDGE),
                          angle_offset=-math.pi / 2, extent=float(geometry.WORKSPACE),
-                         vertices=_points(geometry.TEE_BOXES.reshape(-1, 2) - geometry.TEE_CENTROID))
-
-
-def _points(array) -> tuple[tuple[float, float], ...]:
-    return tuple((float(x), float(y)) for x, y in array)
+                         vertices=tuple((float(x), float(y)) for x, y in geometry.TEE_BOXES.reshape(-1, 2)),
+                         centroid=(float(geometry.TEE_CENTROID[0]), float(geometry.TEE_CENTROID[1])))
 
 
 if __name__ == "__main__":  # `python -m gpc_cli.world_model train ...` (DDP re-launches this way)

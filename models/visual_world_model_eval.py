@@ -51,7 +51,13 @@ class ColourReadout:
     agent_min_share: float = 0.3  # agent visible: at least this share of its median area in the recorded frames
     moved_units: float = 5.0  # the object "moves" when its centroid shifts by more than this (extent units) ...
     moved_deg: float = 5.0  # ... or it turns by more than this
-    vertices: tuple[tuple[float, float], ...] = ()  # the object's outline about the pose read (its centroid); () skips the vertex error
+    vertices: tuple[tuple[float, float], ...] = ()  # the object's outline in its body frame; () skips the vertex error
+    centroid: tuple[float, float] = (0.0, 0.0)  # its area centroid in the body frame: the position colour reads
+
+    @property
+    def pose_vertices(self) -> np.ndarray:
+        """The outline about the pose this readout reports (the centroid), for the vertex error."""
+        return np.asarray(self.vertices, dtype=np.float64).reshape(-1, 2) - np.asarray(self.centroid)
 
     def masks(self, frames: np.ndarray, colours: tuple[Colour, ...]) -> np.ndarray:
         """``(N, S, S, 3)`` uint8 -> ``(N, S, S)`` bool."""
@@ -94,10 +100,10 @@ class LearnedPoseReadout:
     scoring with it actually faces; colour segmentation mistakes a blurred T for a turned one.
     """
 
-    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256,
-                 vertices: tuple[tuple[float, float], ...] = ()) -> None:
+    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256) -> None:
         self.colour, self.predictor, self.source, self.batch_size = colour, predictor.eval(), source, batch_size
-        self.vertices = vertices  # about the body origin: the predictor reads the recorded (state) pose
+        # The predictor reads the recorded (state) pose, about the body origin: the outline as it is.
+        self.pose_vertices = np.asarray(colour.vertices, dtype=np.float64).reshape(-1, 2)
         self.moved_units, self.moved_deg, self.agent_min_share = colour.moved_units, colour.moved_deg, colour.agent_min_share
         self.agent_area = colour.agent_area
 
@@ -109,7 +115,7 @@ class LearnedPoseReadout:
         return torch.cat(parts).double().numpy() if parts else np.zeros((0, 3))
 
     def describe(self) -> dict[str, Any]:
-        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour), "vertices": self.vertices}
+        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour)}
 
 
 def _uint8(frames: torch.Tensor) -> np.ndarray:
@@ -195,7 +201,7 @@ def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndar
     n, t = model.shape[:2]
     pose = {k: readout.object_pose(v.reshape((-1,) + v.shape[2:])).reshape(n, t, 3) for k, v in (("model", model), ("true", true))}
     pose["baseline"] = np.repeat(readout.object_pose(last)[:, None], t, axis=1)
-    vertices = np.asarray(readout.vertices, dtype=np.float64).reshape(-1, 2)
+    vertices = readout.pose_vertices
     moved = _pose_errors(pose["baseline"][:, -1], pose["true"][:, -1])
     moving = (moved["object_units"] > readout.moved_units) | (moved["object_deg"] > readout.moved_deg)
     out: dict[str, Any] = {"moving_windows": int(moving.sum()), "per_step": {}, "final_moving": {}}

@@ -241,7 +241,7 @@ def test_readout_reads_the_block_pose_from_rendered_frames():
     # Its vertices sit about the centroid it reads: placed at the read pose they land on the T's true vertices.
     from tasks.pusht.geometry import tee_vertices, to_world
 
-    read = to_world(np.asarray(readout.vertices), pose)
+    read = to_world(readout.pose_vertices, pose)
     assert np.abs(read - tee_vertices(states[:, 2:5]).reshape(len(states), 8, 2)).max() < 4.0
     assert (readout.agent_area(frames) > 20).all()  # the agent's disc, about 5 px across at 96 px
     empty = np.full_like(frames[:1], 255)
