@@ -224,6 +224,22 @@ def test_wrong_kind_checkpoint_and_nan_data_are_one_line_errors(phase1, store, r
         train_world_model(tiny(2), [store], run(runs, "wm-phase1", resume=True))
 
 
+def test_a_store_of_another_state_size_and_nan_histories_are_refused(phase1, store, tmp_path):
+    wide = tmp_path / "wide.zarr"
+    src, out = EpisodeStore.open(store), EpisodeStore.create(wide, {"task": "pusht"})
+    for e in range(3):
+        ep = src.episode(e, ["state", "action"])
+        out.append_episode({"state": np.concatenate([ep["state"], ep["state"][:, :1]], axis=1), "action": ep["action"]}, seed=e)
+    with pytest.raises(DataError, match=r"wide.zarr: data/state rows are \(6,\), the world model needs \(5,\)") as err:
+        train_world_model(tiny(2), [wide], run(tmp_path, "p2"), init=phase1.last)
+    assert "\n" not in str(err.value) and not (tmp_path / "p2" / "checkpoints").exists()
+    model = WorldModelModule.load_from_checkpoint(phase1.last)
+    history = torch.full((model.n_obs_steps, 5), 200.0)
+    history[-1, 4] = float("nan")
+    with pytest.raises(ValueError, match="NaN or inf"):
+        model.rollout(history, torch.full((2, 4, 2), 200.0))
+
+
 def test_non_finite_loss_stops_training(store, tmp_path, monkeypatch):
     real, calls = wmt.WorldModelModule._loss, {"n": 0}
 
