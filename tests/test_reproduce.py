@@ -50,6 +50,14 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
     phase2 = json.loads((tmp_path / "runs" / "wm-visual-phase2" / "run.json").read_text())
     assert phase2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
+    long = subprocess.run([a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args] + ["VWM=long"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # one restart more, then its own phase 2
+    assert long.returncode == 0, long.stdout[-2000:] + long.stderr[-2000:]
+    restart2 = json.loads((tmp_path / "runs" / "wm-visual-phase1-restart2" / "run.json").read_text())
+    assert restart2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
+    long2 = json.loads((tmp_path / "runs" / "wm-visual-long-phase2" / "run.json").read_text())
+    assert long2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart2" / "checkpoints" / "last.ckpt")
+    assert long2["seed"] == 2 and (tmp_path / "results-vision-long" / "pusht_vision.md").exists()
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
     stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
