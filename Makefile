@@ -15,7 +15,8 @@ EXPLORE ?= 1
 # demonstrations towards random goals and reads the goal; the world model (goal-agnostic) is shared.
 GOAL ?= fixed
 # VWM=long (cpu profile): the visual world model's phase 1 restarted seven times from its own weights
-# (51,000 steps in all, about 4 hours on 2 cores) before 1,000 steps of phase 2; its own runs and results.
+# (51,000 steps in all, about 4 hours on 2 cores) before 1,000 steps of phase 2. It shares phase 1 and
+# the first restart with the default (the same steps and seeds); later restarts, phase 2 and results are its own.
 VWM ?= short
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
@@ -58,8 +59,8 @@ ifeq ($(PROFILE),smoke)
   ARGS.gt-sim-K4 := --planner gt-sim -K 4
   VPOLICY := --profile tiny --max-steps 10
   VWM1 := --profile tiny --max-steps 10
-  VWM1_RESTART := --profile tiny
-  VWM1_RESTARTS := 4 $(if $(filter long,$(VWM)),4)
+  VWM1_RESTART_ARGS := --profile tiny
+  VWM1_RESTART_STEPS := 4 $(if $(filter long,$(VWM)),4)
   VWM2 := --profile tiny --max-steps 4
   VREWARD := --profile tiny --max-steps 10
   VEVAL := --seeds 100000:100002 --max-steps 16 --batch 2
@@ -117,12 +118,12 @@ else ifeq ($(PROFILE),cpu)
   VWM1 := --profile cpu --max-steps 5000 --precision bf16-mixed
   # Phase 1 again from its own weights, a fresh cosine schedule per entry (steps): once, block pose error
   # 60% -> 40% of "nothing moves"; VWM=long, seven times: the block angle within half the baseline's (README).
-  VWM1_RESTART := --profile cpu --precision bf16-mixed
+  VWM1_RESTART_ARGS := --profile cpu --precision bf16-mixed
   ifeq ($(VWM),long)
-    VWM1_RESTARTS := 6000 8000 4000 8000 8000 4000 8000
+    VWM1_RESTART_STEPS := 6000 8000 4000 8000 8000 4000 8000
     VWM2 := --profile cpu --max-steps 1000 --precision bf16-mixed
   else
-    VWM1_RESTARTS := 6000
+    VWM1_RESTART_STEPS := 6000
     VWM2 := --profile cpu --max-steps 2000 --precision bf16-mixed
   endif
   VREWARD := --profile cpu
@@ -139,7 +140,7 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM=long)"
 	@echo "make test              run the test suite"
 	@echo "make bench             run the benchmarks and append their figures to README.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
@@ -246,15 +247,18 @@ $(WM_RUN)-visual-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(WM_RUN)-visual-phase1 $$resume
 	touch $@
 
-# VWM1_RESTARTS: phase 1 restarted from its own weights once per entry (restart N: that many steps,
+# VWM1_RESTART_STEPS: phase 1 restarted from its own weights once per entry (restart N: that many steps,
 # seed N, in wm-visual-phase1-restart, -restart2, ...); phase 2 starts from the last of them.
-RESTART_NS := $(wordlist 1,$(words $(VWM1_RESTARTS)),1 2 3 4 5 6 7 8 9 10 11 12)
+RESTART_NS := $(wordlist 1,$(words $(VWM1_RESTART_STEPS)),1 2 3 4 5 6 7 8 9 10 11 12)
+ifneq ($(words $(VWM1_RESTART_STEPS)),$(words $(RESTART_NS)))
+  $(error VWM1_RESTART_STEPS: at most 12 restarts)
+endif
 restart_run = $(WM_RUN)-visual-phase1$(if $(filter 0,$(1)),,-restart$(filter-out 1,$(1)))
 define restart_rule
 $(call restart_run,$(1)).done: $(call restart_run,$(word $(1),0 $(RESTART_NS))).done
 	if [ -f $(call restart_run,$(1))/checkpoints/last.ckpt ]; then resume=--resume; \
 	else resume="--init $(call restart_run,$(word $(1),0 $(RESTART_NS)))/checkpoints/last.ckpt"; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1_RESTART) --max-steps $(word $(1),$(VWM1_RESTARTS)) \
+	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1_RESTART_ARGS) --max-steps $(word $(1),$(VWM1_RESTART_STEPS)) \
 	  --seed $(1) --out $(call restart_run,$(1)) $$$$resume
 	touch $$@
 endef

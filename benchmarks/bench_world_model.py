@@ -3,7 +3,8 @@ step on the actions through model + reward (what GPC-OPT pays per iteration).
 
 State model (cpu profile, MLP) scored by the registration reward; visual model (cpu or paper
 profile, ``--profile``, EDM U-Net, frozen noise) scored by the learned image reward (the ResNet18
-pose reader of the same profile, on the final predicted frame, as the planners score). Latency does
+pose reader of the same profile; by default only the final predicted frame scores, so only it is read,
+as in the planners). Latency does
 not depend on the weights, so untrained networks of the profiles' shapes are timed unless
 checkpoints are given.
 """
@@ -24,11 +25,12 @@ from models.reward import PoseReward, RegistrationReward
 from models.reward_predictor import IMAGE_KEY, ImageReward, PosePredictor, reward_profile
 from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule
 from models.world_model_config import world_model_profile
+from tasks import get_task
 
 KS = (1, 16, 100)
 T = 16
-TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
-GOAL = torch.tensor([256.0, 256.0, math.pi / 4])
+TASK = get_task("pusht")
+STATE_HIGH = np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi])  # agent x, y, block x, y, angle
 
 
 def _model(obs: str, checkpoint: str | None, profile: str = "cpu") -> WorldModelModule:
@@ -37,21 +39,22 @@ def _model(obs: str, checkpoint: str | None, profile: str = "cpu") -> WorldModel
     norm = MinMaxNormalizer()
     norm.add(ACTION_KEY, np.zeros(2), np.full(2, 512.0))
     if obs == "state":
-        norm.add(STATE_KEY, np.zeros(5), np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi]))
+        norm.add(STATE_KEY, np.zeros(5), STATE_HIGH)
         norm.add(DELTA_KEY, -np.array([10.0, 10.0, 2.0, 2.0, 0.02]), np.array([10.0, 10.0, 2.0, 2.0, 0.02]))
     torch.manual_seed(0)
     return WorldModelModule(world_model_profile(profile, 1, obs=obs).config, normalizer=norm).eval()
 
 
 def _reward(obs: str, checkpoint: str | None, profile: str) -> PoseReward:
+    vertices, goal = torch.as_tensor(TASK.REWARD_VERTICES), torch.as_tensor(TASK.DEFAULT_GOAL)
     if obs == "state":
-        return RegistrationReward(TEE, GOAL)
+        return RegistrationReward(vertices, goal)
     if checkpoint:
-        return ImageReward.from_checkpoint(checkpoint)
-    config = reward_profile(profile).config.with_task(TEE, GOAL, 512.0)
+        return ImageReward.from_checkpoint(checkpoint, goal)
+    config = reward_profile(profile).config.with_task(vertices, goal, TASK.geometry.WORKSPACE)
     norm = MinMaxNormalizer()
     norm.add(IMAGE_KEY, np.zeros(3), np.full(3, 255.0))
-    norm.add(STATE_KEY, np.zeros(5), np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi]))
+    norm.add(STATE_KEY, np.zeros(5), STATE_HIGH)
     torch.manual_seed(0)
     return ImageReward(PosePredictor(config, norm).requires_grad_(False).eval())
 
@@ -116,7 +119,7 @@ if __name__ == "__main__":
     parser.add_argument("--readme", type=Path, default=None)
     parser.add_argument("--state-checkpoint", default=None)
     parser.add_argument("--image-checkpoint", default=None)
-    parser.add_argument("--reward-checkpoint", default=None, help="a `gpc train reward` checkpoint for the visual model's score")
+    parser.add_argument("--reward-checkpoint", default=None, help="a `gpc train reward` checkpoint to score the visual model's frames (the state model uses the registration reward)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--profile", choices=("cpu", "paper"), default="cpu", help="visual model profile (untrained)")
     parser.add_argument("--ks", default=",".join(map(str, KS)), help="proposal counts, comma-separated")

@@ -103,6 +103,8 @@ class PoseReward(nn.Module):
 
     def forward(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
         """``(K, T, ...)`` predicted futures -> ``(K,)`` scores, higher is better."""
+        if self.config.aggregate == "final":  # only the last step scores: read no other (an image reader costs T x)
+            futures = futures[:, -1:]
         return aggregate(self.per_step(futures, goal), self.config)
 
 

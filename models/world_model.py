@@ -181,9 +181,10 @@ class StateDynamics(nn.Module):
                              f"got {tuple(history.shape)}")
         if history.shape[0] != actions.shape[0]:
             raise ValueError(f"history batch {history.shape[0]} differs from actions batch {actions.shape[0]}")
+        history = history[:, -c.history :]
         if not bool(torch.isfinite(history).all()) or not bool(torch.isfinite(actions).all()):
             raise ValueError("history or actions hold NaN or inf")  # a NaN would silently win or lose every ranking
-        states = self.unroll(history[:, -c.history :], actions)
+        states = self.unroll(history, actions)
         return torch.where(self.angle_mask, torch.remainder(states, TWO_PI), states)
 
     @property

@@ -42,19 +42,21 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert third.returncode == 0 and (tmp_path / "results" / "rank-K4" / "summary.json").exists()
     assert {p: p.stat().st_mtime_ns for p in stamps if "rank-K4" not in str(p)} == {
         p: t for p, t in stamps.items() if "rank-K4" not in str(p)}
-    vision = subprocess.run([a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args], cwd=ROOT,
-                            capture_output=True, text=True, timeout=600)
+    vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
+    vision = subprocess.run(vargs, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
     table = json.loads((tmp_path / "results-vision" / "pusht_vision.json").read_text())
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
     assert "| bc | 0.642 |" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
     phase2 = json.loads((tmp_path / "runs" / "wm-visual-phase2" / "run.json").read_text())
     assert phase2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
-    long = subprocess.run([a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args] + ["VWM=long"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)  # one restart more, then its own phase 2
-    assert long.returncode == 0, long.stdout[-2000:] + long.stderr[-2000:]
+    shared = {p: p.stat().st_mtime_ns for p in (tmp_path / "runs").glob("wm-visual-phase*/checkpoints/last.ckpt")}
+    long = subprocess.run(vargs + ["VWM=long"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert long.returncode == 0, long.stdout[-2000:] + long.stderr[-2000:]  # one restart more, then its own phase 2
+    assert len(shared) == 3 and {p: p.stat().st_mtime_ns for p in shared} == shared  # the default's runs are reused as they are
     restart2 = json.loads((tmp_path / "runs" / "wm-visual-phase1-restart2" / "run.json").read_text())
     assert restart2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
+    assert restart2["seed"] == 2
     long2 = json.loads((tmp_path / "runs" / "wm-visual-long-phase2" / "run.json").read_text())
     assert long2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart2" / "checkpoints" / "last.ckpt")
     assert long2["seed"] == 2 and (tmp_path / "results-vision-long" / "pusht_vision.md").exists()

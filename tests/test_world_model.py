@@ -224,7 +224,7 @@ def test_wrong_kind_checkpoint_and_nan_data_are_one_line_errors(phase1, store, r
         train_world_model(tiny(2), [store], run(runs, "wm-phase1", resume=True))
 
 
-def test_a_store_of_another_state_size_and_nan_histories_are_refused(phase1, store, tmp_path):
+def test_a_store_of_another_state_size_is_refused_in_one_line(phase1, store, tmp_path):
     wide = tmp_path / "wide.zarr"
     src, out = EpisodeStore.open(store), EpisodeStore.create(wide, {"task": "pusht"})
     for e in range(3):
@@ -233,11 +233,18 @@ def test_a_store_of_another_state_size_and_nan_histories_are_refused(phase1, sto
     with pytest.raises(DataError, match=r"wide.zarr: data/state rows are \(6,\), the world model needs \(5,\)") as err:
         train_world_model(tiny(2), [wide], run(tmp_path, "p2"), init=phase1.last)
     assert "\n" not in str(err.value) and not (tmp_path / "p2" / "checkpoints").exists()
+
+
+@pytest.mark.parametrize("where", ["history", "actions"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_rollout_refuses_non_finite_inputs(phase1, where, bad):
     model = WorldModelModule.load_from_checkpoint(phase1.last)
-    history = torch.full((model.n_obs_steps, 5), 200.0)
-    history[-1, 4] = float("nan")
+    history, actions = torch.full((model.n_obs_steps + 2, 5), 200.0), torch.full((2, 4, 2), 200.0)
+    history[0, 4] = bad  # older than the model reads: ignored
+    assert torch.isfinite(model.rollout(history, actions)).all()
+    (history[-1:, 4] if where == "history" else actions[1, 2, :1]).fill_(bad)
     with pytest.raises(ValueError, match="NaN or inf"):
-        model.rollout(history, torch.full((2, 4, 2), 200.0))
+        model.rollout(history, actions)
 
 
 def test_non_finite_loss_stops_training(store, tmp_path, monkeypatch):
