@@ -3,9 +3,8 @@ step on the actions through model + reward (what GPC-OPT pays per iteration).
 
 State model (cpu profile, MLP) scored by the registration reward; visual model (cpu or paper
 profile, ``--profile``, EDM U-Net, frozen noise) scored by the learned image reward (the ResNet18
-pose reader of the same profile; by default only the final predicted frame scores, so only it is read,
-as in the planners). Latency does
-not depend on the weights, so untrained networks of the profiles' shapes are timed unless
+pose reader of the same profile, reading the final predicted frame, as in the planners). Latency
+does not depend on the weights, so untrained networks of the profiles' shapes are timed unless
 checkpoints are given.
 """
 
