@@ -16,15 +16,17 @@ import torch
 
 from benchmarks.bench_policy import _policy
 from benchmarks.common import median_seconds, publish
-from datasets.normalizer import MinMaxNormalizer
-from gpc_cli.planning import RewardSpec, build_reward
-from models.controllers import SamplingConfig
-from models.planner_config import PlannerConfig
-from models.planners import Planner
-from models.world_model import STATE_KEY, WorldModelModule
-from models.world_model_config import world_model_profile
-from tasks.pusht import SimulatorModel, observe
-from tasks.pusht.env import PushTEnv
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.harness.recipes import RewardSpec, build_reward
+from gpc.models.policy.controller import SamplingConfig
+from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.planner import Planner
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.state import STATE_KEY
+from gpc.models.world_models.config import world_model_profile
+from gpc.tasks.pusht import SimulatorModel, observe
+from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht import LAYOUT
 
 SETTINGS = [  # (label, planner config fields, world model: learned | gt-sim, target)
     ("rank K=100", dict(kind="rank", num_proposals=100), "learned", "<= 0.25 s"),
@@ -39,7 +41,7 @@ SETTINGS = [  # (label, planner config fields, world model: learned | gt-sim, ta
 
 
 def _world_model() -> WorldModelModule:
-    config = world_model_profile("cpu", 1).config
+    config = world_model_profile("cpu", 1, LAYOUT).config
     rng = np.random.default_rng(0)
     states = rng.uniform(0, 512, (256, 5))
     normalizer = MinMaxNormalizer.fit({STATE_KEY: states, "action": rng.uniform(0, 512, (256, 2))})
@@ -48,7 +50,7 @@ def _world_model() -> WorldModelModule:
 
 
 def run(readme: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None) -> None:
-    from models.policy import PolicyModule
+    from gpc.models.policy.module import PolicyModule
 
     torch.manual_seed(0)
     policy = PolicyModule.load_from_checkpoint(policy_ckpt) if policy_ckpt else _policy("cpu", "keypoints")

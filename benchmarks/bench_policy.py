@@ -14,16 +14,17 @@ import numpy as np
 import torch
 
 from benchmarks.common import median_seconds, publish
-from datasets.normalizer import MinMaxNormalizer
-from datasets.windows import IMAGE_KEYS
-from models.policy import PolicyModule
-from models.policy_config import policy_profile
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.datasets.windows import IMAGE_KEYS
+from gpc.models.policy.module import PolicyModule
+from gpc.models.policy.config import policy_profile
+from gpc.tasks.pusht import LAYOUT
 
 SHAPES = {"state": (5,), "keypoint": (9, 2), "img": (96, 96, 3)}
 
 
 def _policy(profile: str, obs: str) -> PolicyModule:
-    config = policy_profile(profile, obs).policy
+    config = policy_profile(profile, obs, LAYOUT).config
     config = config.with_obs_shapes({k: SHAPES[k] for k in config.obs_keys})
     rng = np.random.default_rng(0)
     data = {k: rng.uniform(0, 512, (64,) + SHAPES[k]) for k in config.obs_keys} | {"action": rng.uniform(0, 512, (64, 2))}
@@ -40,7 +41,7 @@ def _batch(policy: PolicyModule, n: int) -> dict[str, torch.Tensor]:
 def train_rows(profiles: list[str], obs: str) -> list[list[str]]:
     rows = []
     for name in profiles:
-        prof = policy_profile(name, obs)
+        prof = policy_profile(name, obs, LAYOUT)
         policy = _policy(name, obs)
         opt = torch.optim.AdamW(policy.model.parameters(), lr=1e-4)
         batch = _batch(policy, prof.batch_size)

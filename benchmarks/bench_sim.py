@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import median_seconds, publish
-from tasks.pusht.record import RecordConfig, record_episode
-from tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht.record import RecordConfig, record_episode
+from gpc.tasks.pusht.env import PushTEnv
 
 
 def run(readme: Path | None) -> list[list[str]]:
@@ -49,7 +49,7 @@ def _run(readme: Path | None) -> list[list[str]]:
     t_snap = median_seconds(env.sim.snapshot, number=20000)
     t_restore = median_seconds(lambda: env.sim.restore(snap), number=20000)
 
-    from tasks.pusht import scripted_policy
+    from gpc.tasks.pusht import scripted_policy
 
     times = []
     for kind in ("expert", "explore"):

@@ -19,8 +19,8 @@ import torch
 
 from benchmarks.common import publish
 from benchmarks.vlm_server import Reply, ScriptedChatServer
-from models.vlm_reward import VLMConfig, VLMReward
-from tasks.pusht import render_state
+from gpc.models.rewards.vlm import VLMConfig, VLMReward
+from gpc.tasks.pusht import render_state
 
 
 def _futures(k: int, rng: np.random.Generator) -> torch.Tensor:

@@ -19,12 +19,14 @@ import numpy as np
 import torch
 
 from benchmarks.common import append_rows, median_seconds, show
-from datasets.normalizer import MinMaxNormalizer
-from models.reward import PoseReward, RegistrationReward
-from models.reward_predictor import IMAGE_KEY, ImageReward, PosePredictor, reward_profile
-from models.world_model import ACTION_KEY, DELTA_KEY, STATE_KEY, WorldModelModule
-from models.world_model_config import world_model_profile
-from tasks import get_task
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.models.rewards.registration import PoseReward, RegistrationReward
+from gpc.models.rewards.learned import IMAGE_KEY, ImageReward, PosePredictor, reward_profile
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.state import ACTION_KEY, DELTA_KEY, STATE_KEY
+from gpc.models.world_models.config import world_model_profile
+from gpc.tasks import get_task
+from gpc.tasks.pusht import LAYOUT
 
 KS = (1, 16, 100)
 T = 16
@@ -41,16 +43,16 @@ def _model(obs: str, checkpoint: str | None, profile: str = "cpu") -> WorldModel
         norm.add(STATE_KEY, np.zeros(5), STATE_HIGH)
         norm.add(DELTA_KEY, -np.array([10.0, 10.0, 2.0, 2.0, 0.02]), np.array([10.0, 10.0, 2.0, 2.0, 0.02]))
     torch.manual_seed(0)
-    return WorldModelModule(world_model_profile(profile, 1, obs=obs).config, normalizer=norm).eval()
+    return WorldModelModule(world_model_profile(profile, 1, LAYOUT, obs=obs).config, normalizer=norm).eval()
 
 
 def _reward(obs: str, checkpoint: str | None, profile: str) -> PoseReward:
     vertices, goal = torch.as_tensor(TASK.REWARD_VERTICES), torch.as_tensor(TASK.DEFAULT_GOAL)
     if obs == "state":
-        return RegistrationReward(vertices, goal)
+        return RegistrationReward(vertices, goal, LAYOUT.state.object_pose)
     if checkpoint:
         return ImageReward.from_checkpoint(checkpoint, goal)
-    config = reward_profile(profile).config.with_task(vertices, goal, TASK.geometry.WORKSPACE)
+    config = reward_profile(profile, LAYOUT).config
     norm = MinMaxNormalizer()
     norm.add(IMAGE_KEY, np.zeros(3), np.full(3, 255.0))
     norm.add(STATE_KEY, np.zeros(5), STATE_HIGH)

@@ -1,6 +1,6 @@
 """Zarr episode stores, padded windows, normalizers and DataModules (Diffusion Policy's data path)."""
 
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
 
 __all__ = ["DataError", "EpisodeStore"]

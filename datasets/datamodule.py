@@ -8,10 +8,10 @@ import lightning as L
 import numpy as np
 from torch.utils.data import DataLoader
 
-from datasets.errors import DataError
-from datasets.normalizer import MinMaxNormalizer
-from datasets.sequence import WindowSpec, split_episodes
-from datasets.windows import IMAGE_KEYS, WindowDataset, load_stores
+from gpc.datasets.errors import DataError
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.datasets.sequence import WindowSpec, split_episodes
+from gpc.datasets.windows import IMAGE_KEYS, WindowDataset, load_stores
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from datasets.errors import DataError
+from gpc.datasets.errors import DataError
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import numcodecs
 import numpy as np
 import zarr
 
-from datasets.errors import DataError
+from gpc.datasets.errors import DataError
 
 FORMAT_VERSION = 1
 _CHUNK_BYTES = 4 << 20

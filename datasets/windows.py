@@ -10,9 +10,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from datasets.errors import DataError
-from datasets.sequence import WindowSpec, window_indices, window_starts
-from datasets.store import EpisodeStore
+from gpc.datasets.errors import DataError
+from gpc.datasets.sequence import WindowSpec, window_indices, window_starts
+from gpc.datasets.store import EpisodeStore
 
 IMAGE_KEYS = ("img", "pixels")
 

@@ -1,3 +1,1 @@
-"""The `gpc` command line: thin Typer commands over tasks/, datasets/ and models/."""
-
-__version__ = "0.1.0"
+"""The `gpc` command line: each command parses its options and calls one library function."""

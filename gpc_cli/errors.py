@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import sys
-from pathlib import Path
 from typing import Any, NoReturn
 
 import typer
@@ -16,19 +15,6 @@ USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, KeyError, NotADir
 def fail(message: str) -> NoReturn:
     print(f"gpc: error: {message}", file=sys.stderr)
     raise SystemExit(2)
-
-
-def check_import_layout() -> None:
-    """Refuse to run against Hugging Face's ``datasets`` (a name clash of the user's layout)."""
-    import datasets
-
-    here = Path(__file__).resolve().parent.parent
-    origin = Path(getattr(datasets, "__file__", "") or "").resolve()
-    if here not in origin.parents:
-        fail(
-            f"the package 'datasets' resolves to {origin}, not gpc's; run gpc from its own virtual "
-            "environment (make venv) where Hugging Face's datasets is not installed"
-        )
 
 
 class OneLineErrors(TyperGroup):

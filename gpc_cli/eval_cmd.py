@@ -7,8 +7,8 @@ from typing import Annotated, List, Optional
 
 import typer
 
-from gpc_cli.groups import DefaultToRun
-from gpc_cli.run_options import with_shared_options
+from gpc.cli.groups import DefaultToRun
+from gpc.cli.run_options import with_shared_options
 
 eval_app = typer.Typer(
     cls=DefaultToRun, no_args_is_help=True,
@@ -45,45 +45,22 @@ with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
 def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: str, keep_futures: bool = False,
                         vlm_cache: Optional[Path] = None):
-    """The controller recipe the options describe; checkpoints are opened once here so errors come first."""
-    from gpc_cli.planning import GT_SIM, PlannerRecipe, RewardSpec
-    from models.controllers import SamplingConfig
-    from models.planner_config import PlannerConfig
-    from models.policy import PolicyModule
-    from tasks import get_task
+    """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``)."""
+    from gpc.harness.recipes import RewardSpec, make_recipe
+    from gpc.models.policy.controller import SamplingConfig
 
     o = planning
-    world_model, k, m, lr = o["world_model"], o["k"], o["m"], o["lr"]
-    sampling = SamplingConfig(o["method"], o["steps"], o["spacing"])
-    policy = PolicyModule.load_from_checkpoint(str(checkpoint))
-    unseen = [key for key in policy.obs_keys if key not in get_task(policy.config.task).record_keys(True, goal)]
-    if unseen:
-        raise ValueError(f"{checkpoint}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "
-                         f"observe (a policy trained with --goal random needs --goal random)")
-    if planner == "bc":
-        if world_model or k or m:
-            raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
-        return PlannerRecipe(str(checkpoint), sampling=sampling)
-    kind = "rank" if planner == GT_SIM else planner
-    if planner == GT_SIM:
-        if world_model not in (None, GT_SIM):
-            raise ValueError(f"--planner {GT_SIM} uses the true simulator; drop --world-model {world_model}")
-        world_model = GT_SIM
-    default_m = {"rank": 0, "cem": 5, "mppi": 5}.get(kind, 30)
     vlm = None
     if o["reward"] == "vlm":
-        from models.vlm_reward import VLMConfig
+        from gpc.models.rewards.vlm import VLMConfig
 
         if not o["vlm_base_url"] or not o["vlm_model"]:
             raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model (the key comes from $OPENAI_API_KEY)")
         vlm = VLMConfig(base_url=o["vlm_base_url"], model=o["vlm_model"], cache_dir=str(vlm_cache) if vlm_cache else None)
-    config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
-                           opt_steps=m if m is not None else default_m, lr=lr, keep_futures=keep_futures)
-    recipe = PlannerRecipe(str(checkpoint), config, world_model,
-                           RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm), sampling,
-                           policy.config.task)
-    recipe()  # build it once here: a mismatched world model or reward fails now, in one line
-    return recipe
+    return make_recipe(checkpoint, planner, world_model=o["world_model"], k=o["k"], m=o["m"], lr=o["lr"],
+                       reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
+                       sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,
+                       keep_futures=keep_futures)
 
 
 @eval_app.command("run")
@@ -105,22 +82,21 @@ def eval_run(
     """Closed-loop evaluation of the frozen policy (BC) or a planner over it, on test seeds."""
     from rich.progress import Progress
 
-    from gpc_cli.evaluation import EvalConfig, evaluate, write_results, write_spread
-    from gpc_cli.planning import planner_summary
-    from gpc_cli.reports import parse_seeds
+    from gpc.cli.reports import parse_seeds
+    from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
 
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
     for s in samplings:
-        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), goal=goal, max_steps=max_steps, batch=batch,
+        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), task=recipe.task, goal=goal, max_steps=max_steps, batch=batch,
                             workers=workers, threads=threads, sampling_seed=s,
                             video_dir=str(out / "videos") if videos and s == samplings[0] else None,
                             videos=videos if s == samplings[0] else 0)
         with Progress() as bar:
             tid = bar.add_task(f"{recipe.label} (sampling seed {s})", total=len(config.seeds))
             result = evaluate(recipe, config, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
-        result["controller"] = planner_summary(recipe)
+        result["controller"] = recipe.summary()
         results.append(result)
         write_results(result, out / f"sampling-seed-{s}" if len(samplings) > 1 else out, f"{recipe.label}: {checkpoint}")
     if len(samplings) > 1:
@@ -140,16 +116,15 @@ def plan_one(
     threads: Threads = 2,
 ) -> None:
     """Run one planner on one seed; the MP4 shows, per decision, the K predicted futures and their rewards."""
-    from gpc_cli.evaluation import EvalConfig, evaluate, write_results
-    from gpc_cli.planning import planner_summary
+    from gpc.harness.evaluation import EvalConfig, evaluate, write_results
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
-    config = EvalConfig(seeds=(seed,), goal=goal, max_steps=max_steps, batch=1, threads=threads,
+    config = EvalConfig(seeds=(seed,), task=recipe.task, goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
     result = evaluate(recipe, config)
-    result["controller"] = planner_summary(recipe)
+    result["controller"] = recipe.summary()
     write_results(result, out, f"{recipe.label}: {checkpoint}, seed {seed}")
     row = result["episodes"][0]
     typer.echo(f"seed {seed}: score {row['score']:.3f}, success {row['success']}, {row['steps']} steps; "
@@ -165,7 +140,7 @@ def compare(
     paper: Optional[str] = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
 ) -> None:
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
-    from gpc_cli.compare import compare_runs, plot_comparison, write_comparison
+    from gpc.harness.comparison import compare_runs, plot_comparison, write_comparison
 
     table = compare_runs(baseline, runs, ceiling)
     md = write_comparison(table, out, title, paper)

@@ -8,11 +8,12 @@ from typing import Optional
 
 import typer
 
-from gpc_cli.errors import OneLineErrors, check_import_layout
-from gpc_cli.eval_cmd import eval_app, register as register_eval
-from gpc_cli.reward import evaluate as eval_reward, train as train_reward
-from gpc_cli.train import train_app
-from gpc_cli.world_model import evaluate as eval_world_model, train as train_world_model
+from gpc.cli.errors import OneLineErrors
+from gpc.cli.eval_cmd import eval_app, register as register_eval
+from gpc.cli.reward import evaluate as eval_reward, train as train_reward
+from gpc.cli.train import train_app
+from gpc.cli.world_model import evaluate as eval_world_model, train as train_world_model
+from gpc.tasks import DEFAULT_TASK, get_task
 
 app = typer.Typer(
     help="Generative Predictive Control: improve a frozen diffusion policy with a learned world model.",
@@ -35,7 +36,7 @@ def collect(
     episodes: int = typer.Option(100, "--episodes", "-n", min=1, help="Number of episodes (seeds SEED .. SEED+N-1)."),
     seed: int = typer.Option(0, "--seed", min=0, help="First environment seed; keep clear of the test seeds (100000+)."),
     workers: int = typer.Option(1, "--workers", "-j", min=1, help="Parallel worker processes; the store is identical for any count."),
-    task: str = typer.Option("pusht", "--task", help="Task to collect from."),
+    task: str = typer.Option(DEFAULT_TASK, "--task", help="Task to collect from."),
     goal: str = typer.Option("fixed", "--goal", help="fixed: the standard goal; random: a per-seed goal (GPC's variant)."),
     images: bool = typer.Option(True, "--images/--no-images", help="Store 96x96 frames (key img)."),
     max_steps: int = typer.Option(300, "--max-steps", min=1, help="Steps per episode at most."),
@@ -44,7 +45,7 @@ def collect(
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from gpc_cli.collect import CollectJob, collect as run_collect
+    from gpc.harness.collection import CollectJob, collect as run_collect
 
     job = CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes,
                      seed=seed, workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite)
@@ -73,7 +74,8 @@ def data_info(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
 ) -> None:
     """Episodes, steps, keys and shapes, contact fraction and score distribution of a store."""
-    from gpc_cli.reports import describe_store, print_description
+    from gpc.cli.reports import print_description
+    from gpc.harness.stores import describe_store
 
     info = describe_store(path)
     typer.echo(json.dumps(info, indent=2)) if as_json else print_description(info)
@@ -86,7 +88,7 @@ def data_video(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="MP4 to write (default: <store>_ep<i>.mp4)."),
 ) -> None:
     """Write one episode as an MP4."""
-    from gpc_cli.reports import episode_video
+    from gpc.harness.stores import episode_video
 
     written = episode_video(path, episode, out)
     typer.echo(f"wrote {written}")
@@ -98,11 +100,15 @@ def check_sim(
     episodes: int = typer.Option(0, "--episodes", min=0, help="Check only the first N episodes (0: all)."),
     frame_stride: int = typer.Option(10, "--frame-stride", min=1, help="Compare every k-th recorded frame."),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the figures as JSON here."),
+    task: str = typer.Option(DEFAULT_TASK, "--task", help="Task whose simulator replays the store."),
 ) -> None:
     """Replay recorded actions and re-render recorded states; print how closely they match."""
-    from gpc_cli.reports import check_simulator, print_check
+    from gpc.cli.reports import print_check
 
-    report = check_simulator(data, episodes, frame_stride)
+    check = get_task(task).check_replay
+    if check is None:
+        raise ValueError(f"--task {task}: this task has no replay check")
+    report = check(data, episodes, frame_stride)
     print_check(report)
     if out:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -114,16 +120,16 @@ def eval_expert(
     seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),
     goal: str = typer.Option("fixed", "--goal", help="fixed or random goal."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write per-seed JSON and a Markdown summary to this directory."),
+    task: str = typer.Option(DEFAULT_TASK, "--task", help="Task whose expert to score."),
 ) -> None:
-    """Score the scripted expert in closed loop (300 steps, max reward per episode)."""
-    from gpc_cli.reports import expert_report, parse_seeds
+    """Score the scripted expert in closed loop (the task's episode length, max reward per episode)."""
+    from gpc.cli.reports import collector_report, parse_seeds
 
-    report = expert_report(parse_seeds(seeds), goal, out)
+    report = collector_report(task, "expert", parse_seeds(seeds), goal, out)
     typer.echo(report)
 
 
 def main() -> None:
-    check_import_layout()
     app()
 
 

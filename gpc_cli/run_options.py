@@ -10,11 +10,19 @@ from typing import Annotated, Any, Callable, List, Optional
 
 import typer
 
-from tasks import TASKS
+from gpc.tasks import task_names
 
 Datasets = Annotated[List[Path], typer.Option("--dataset", "-d", help="Zarr episode store; repeat to train on several.")]
 Out = Annotated[Path, typer.Option("--out", "-o", help="Run directory (checkpoints/, tensorboard/, run.json).")]
-Task = Annotated[str, typer.Option("--task", help="Task the data comes from.")]
+
+
+def _known_task(name: str) -> str:
+    if name not in task_names():
+        raise typer.BadParameter(f"unknown task {name!r} (known: {', '.join(task_names())})")
+    return name
+
+
+Task = Annotated[str, typer.Option("--task", help="Task the data comes from.", callback=_known_task)]
 MaxSteps = Annotated[Optional[int], typer.Option("--max-steps", min=1, help="Total optimiser steps (default: the profile's).")]
 MaxEpochs = Annotated[Optional[int], typer.Option("--max-epochs", min=1, help="Passes over the training windows.")]
 BatchSize = Annotated[Optional[int], typer.Option("--batch-size", min=1, help="Windows per step and device (default: the profile's).")]
@@ -74,10 +82,8 @@ with_run_options = with_shared_options(RUN_OPTIONS, "options")
 def run_config(out: Path, default_steps: int, default_batch: int, *, max_steps: int | None, max_epochs: int | None,
                batch_size: int | None, task: str, **lightning: Any):
     """A ``RunConfig`` from the shared options, the profile filling what was not given."""
-    from models.training import RunConfig
+    from gpc.models.training.config import RunConfig
 
-    if task not in TASKS:
-        raise typer.BadParameter(f"unknown task {task!r} (known: {', '.join(TASKS)})", param_hint="--task")
     return RunConfig(run_dir=out, max_steps=max_steps if max_steps or max_epochs else default_steps,
                      max_epochs=max_epochs, batch_size=batch_size or default_batch, **lightning)
 

@@ -1,4 +1,4 @@
-"""`gpc train ...`: thin Typer commands over ``models.training``."""
+"""`gpc train ...`: thin Typer commands over ``gpc.models.training.trainer``."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ from typing import Optional
 
 import typer
 
-from gpc_cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
+from gpc.cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
+from gpc.tasks import DEFAULT_TASK, get_task
 
 train_app = typer.Typer(help="Train the policy (world models and rewards follow).", no_args_is_help=True)
 
@@ -22,7 +23,7 @@ def _group() -> None:
 def policy(
     dataset: Datasets,
     out: Out,
-    task: Task = "pusht",
+    task: Task = DEFAULT_TASK,
     obs: str = typer.Option("state", "--obs", help="Observations: state, keypoints or image."),
     profile: str = typer.Option("cpu", "--profile", help="cpu (narrow U-Net, DDIM-10), paper (Diffusion Policy's sizes), tiny (tests)."),
     lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
@@ -30,20 +31,21 @@ def policy(
     options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
-    from models.policy_config import policy_profile
-    from models.training import train_policy
+    from gpc.models.policy.config import policy_profile
+    from gpc.models.policy.module import PolicyModule
+    from gpc.models.training import trainer
 
     if goal not in ("fixed", "random"):
         raise typer.BadParameter(f"goal {goal!r}: use fixed or random", param_hint="--goal")
-    chosen = policy_profile(profile, obs, task)
-    policy_config = chosen.policy
+    chosen = policy_profile(profile, obs, get_task(task).layout)
+    policy_config = chosen.config
     if goal == "random":
         policy_config = dataclasses.replace(policy_config, encoder=dataclasses.replace(policy_config.encoder, goal=True))
     if lr is not None:
         policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(train_policy(policy_config, dataset, run))
+    echo_result(trainer.train(PolicyModule, policy_config, dataset, run))
 
 
-if __name__ == "__main__":  # `python -m gpc_cli.train policy ...` (DDP re-launches this way)
+if __name__ == "__main__":  # `python -m gpc.cli.train policy ...` (DDP re-launches this way)
     train_app()

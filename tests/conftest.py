@@ -19,7 +19,7 @@ def human_data() -> Path:
 
 @pytest.fixture(scope="session")
 def human_arrays(human_data: Path) -> dict:
-    from datasets.store import EpisodeStore
+    from gpc.datasets.store import EpisodeStore
 
     store = EpisodeStore.open(human_data)
     return {

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from datasets.store import EpisodeStore
-from gpc_cli.main import app
+from gpc.datasets.store import EpisodeStore
+from gpc.cli.main import app
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,7 +73,7 @@ def test_refuses_a_store_of_another_kind_unless_overwrite(tmp_path):
 
 def test_sigkilled_collection_resumes_to_the_same_store(tmp_path):
     killed, clean = tmp_path / "killed.zarr", tmp_path / "clean.zarr"
-    cmd = [sys.executable, "-m", "gpc_cli.main", "collect", "--out", str(killed), "--episodes", "6", *FAST]
+    cmd = [sys.executable, "-m", "gpc.cli.main", "collect", "--out", str(killed), "--episodes", "6", *FAST]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 60
     while time.time() < deadline:  # kill once a couple of episodes have landed, mid-collection

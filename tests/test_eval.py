@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,15 +11,18 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from gpc_cli.collect import CollectJob, collect
-from gpc_cli.evaluation import EvalConfig, episode_generator, evaluate, run_group, write_results
-from gpc_cli.main import app
-from models.controllers import PolicyControllerFactory
-from models.policy_config import policy_profile
-from models.protocols import Controller, Plan
-from models.training import RunConfig, train_policy
-from tasks.pusht import geometry
-from tasks.pusht.env import PushTEnv
+from gpc.harness.collection import CollectJob, collect
+from gpc.harness.evaluation import EvalConfig, episode_generator, evaluate, run_group, write_results
+from gpc.cli.main import app
+from gpc.models.policy.controller import PolicyControllerFactory
+from gpc.models.policy.config import policy_profile
+from gpc.models.planning.protocols import Controller, Plan
+from gpc.models.training.config import RunConfig
+from gpc.models.policy.module import PolicyModule
+from gpc.models.training.trainer import train
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht import LAYOUT
 
 SEEDS = (100000, 100001, 100002, 100003)
 
@@ -45,15 +47,15 @@ class HoldStill:
 def checkpoint(tmp_path_factory) -> str:
     """A keypoint policy trained a few steps on real expert demonstrations."""
     tmp = tmp_path_factory.mktemp("eval")
-    collect(CollectJob(out=tmp / "expert.zarr", episodes=3, images=False, max_steps=60))
-    result = train_policy(policy_profile("tiny", "keypoints").policy, [tmp / "expert.zarr"],
+    collect(CollectJob(task="pusht", out=tmp / "expert.zarr", episodes=3, images=False, max_steps=60))
+    result = train(PolicyModule, policy_profile("tiny", "keypoints", LAYOUT).config, [tmp / "expert.zarr"],
                           RunConfig(run_dir=tmp / "run", max_steps=30, batch_size=32, progress=False, accelerator="cpu"))
     return str(result.last)
 
 
 def test_harness_scores_a_known_controller_exactly():
     assert isinstance(HoldStill(), Controller)
-    res = evaluate(HoldStill(), EvalConfig(seeds=SEEDS, max_steps=20, batch=3))
+    res = evaluate(HoldStill(), EvalConfig(task="pusht", seeds=SEEDS, max_steps=20, batch=3))
     for row in res["episodes"]:
         env = PushTEnv()
         _, info = env.reset(seed=row["seed"])
@@ -65,13 +67,13 @@ def test_harness_scores_a_known_controller_exactly():
 
 def test_bc_results_are_identical_for_any_worker_count_and_repeatable(checkpoint, tmp_path):
     factory = PolicyControllerFactory(checkpoint)
-    config = EvalConfig(seeds=SEEDS, max_steps=24, batch=2)
+    config = EvalConfig(task="pusht", seeds=SEEDS, max_steps=24, batch=2)
     one = evaluate(factory, config)
-    two = evaluate(factory, EvalConfig(seeds=SEEDS, max_steps=24, batch=2, workers=2))
+    two = evaluate(factory, EvalConfig(task="pusht", seeds=SEEDS, max_steps=24, batch=2, workers=2))
     again = evaluate(factory, config)
     assert one["episodes"] == two["episodes"] == again["episodes"]
     assert [r["seed"] for r in one["episodes"]] == list(SEEDS)
-    other = evaluate(factory, EvalConfig(seeds=SEEDS, max_steps=24, batch=2, sampling_seed=1))
+    other = evaluate(factory, EvalConfig(task="pusht", seeds=SEEDS, max_steps=24, batch=2, sampling_seed=1))
     assert other["episodes"] != one["episodes"]  # the sampling seed does reach the policy
     write_results(one, tmp_path / "out", "BC")
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -134,7 +136,7 @@ class Recorder:
 def test_history_holds_consecutive_steps_like_the_training_windows():
     """Diffusion Policy conditions on o_{t-1}, o_t; a history of o_{t-8}, o_t halves the scores (measured)."""
     recorder = Recorder()
-    run_group(recorder, (100000,), EvalConfig(seeds=(100000,), max_steps=16, batch=1))
+    run_group(recorder, (100000,), EvalConfig(task="pusht", seeds=(100000,), max_steps=16, batch=1))
     env = PushTEnv()
     env.reset(seed=100000)
     states = [env.sim.state()]
@@ -149,19 +151,19 @@ def test_random_goal_pipeline_collects_trains_and_plans_towards_each_episodes_go
     """GPC's random-goal variant: the stores, the policy and the planners all see each episode's goal."""
     runner = CliRunner()
     store = tmp_path / "expert.zarr"
-    collect(CollectJob(out=store, episodes=2, images=False, max_steps=30, goal="random"))
+    collect(CollectJob(task="pusht", out=store, episodes=2, images=False, max_steps=30, goal="random"))
     trained = runner.invoke(app, ["train", "policy", "--dataset", str(store), "--obs", "keypoints", "--goal", "random",
                                   "--profile", "tiny", "--max-steps", "2", "--batch-size", "8", "--accelerator", "cpu",
                                   "--no-progress", "--out", str(tmp_path / "run")])
     assert trained.exit_code == 0, trained.output
     ckpt = str(tmp_path / "run" / "checkpoints" / "last.ckpt")
-    from models.policy import PolicyModule
+    from gpc.models.policy.module import PolicyModule
 
     policy = PolicyModule.load_from_checkpoint(ckpt)
     assert dict(policy.config.encoder.obs_shapes)["goal_keypoint"] == (9, 2)
 
     seen: list[np.ndarray] = []
-    from models.reward import RegistrationReward
+    from gpc.models.rewards.registration import RegistrationReward
 
     original = RegistrationReward.forward
     monkeypatch.setattr(RegistrationReward, "forward",

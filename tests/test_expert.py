@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tasks.pusht import geometry
-from tasks.pusht.env import PushTEnv
-from tasks.pusht.expert import ExpertConfig, PushTExpert, approach_paths, clearance, evaluate_expert
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht.expert import ExpertConfig, PushTExpert, approach_paths, clearance, evaluate_expert
 
 
 def _actions(env_seed: int, expert_seed: int, steps: int, goal: str = "fixed") -> tuple[np.ndarray, np.ndarray]:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tasks.pusht import geometry
-from tasks.pusht.env import PushTEnv
-from tasks.pusht.explore import ExploreConfig, ExplorePolicy, evaluate_explore
-from tasks.pusht.geometry import pose_cells
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht.explore import ExploreConfig, ExplorePolicy, evaluate_explore
+from gpc.tasks.pusht.geometry import pose_cells
 
 
 def _rollout(mode: str, seed: int, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import shapely.geometry as sg
 
-from tasks.pusht import geometry
+from gpc.tasks.pusht import geometry
 
 
 def _shapely_coverage(block_pose, goal_pose):

@@ -4,31 +4,34 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from typer.testing import CliRunner
 
-from gpc_cli.collect import CollectJob, collect
-from gpc_cli.compare import paired_interval, t_quantile
-from gpc_cli.evaluation import episode_generator
-from gpc_cli.main import app
-from gpc_cli.planning import PlannerRecipe, RewardSpec, build_reward
-from models.controllers import PolicyController
-from models.planner_config import PLANNERS, PlannerConfig
-from models.planners import Objective, PartTimer, Planner, load_planner
-from models.policy import PolicyModule
-from models.policy_config import policy_profile
-from models.reward import RegistrationReward
-from models.training import RunConfig, train_policy
-from models.world_model import WorldModelModule
-from models.world_model_config import world_model_profile
-from models.world_model_training import train_world_model
-from tasks import get_task
-from tasks.pusht import REWARD_VERTICES, SimulatorModel, observe
-from tasks.pusht.env import PushTEnv
+from gpc.harness.collection import CollectJob, collect
+from gpc.harness.comparison import paired_interval, t_quantile
+from gpc.harness.evaluation import episode_generator
+from gpc.cli.main import app
+from gpc.harness.recipes import PlannerRecipe, RewardSpec, build_reward
+from gpc.models.policy.controller import PolicyController
+from gpc.models.planning.config import PLANNERS, PlannerConfig
+from gpc.models.planning.loading import load_planner
+from gpc.models.planning.objective import Objective, PartTimer
+from gpc.models.planning.planner import Planner
+from gpc.models.policy.module import PolicyModule
+from gpc.models.policy.config import policy_profile
+from gpc.models.rewards.registration import RegistrationReward
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import train
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.config import world_model_profile
+from gpc.tasks import get_task
+from gpc.tasks.pusht import SimulatorModel
+from gpc.tasks.pusht.record import observe
+from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht import LAYOUT
 
 PUSHT = get_task("pusht")
 
@@ -37,11 +40,11 @@ PUSHT = get_task("pusht")
 def ckpts(tmp_path_factory) -> dict[str, str]:
     """A keypoint policy and a state world model, each trained a few steps on real expert episodes."""
     tmp = tmp_path_factory.mktemp("planners")
-    collect(CollectJob(out=tmp / "expert.zarr", episodes=4, images=False, max_steps=60))
+    collect(CollectJob(task="pusht", out=tmp / "expert.zarr", episodes=4, images=False, max_steps=60))
     run = dict(batch_size=32, progress=False, accelerator="cpu")
-    policy = train_policy(policy_profile("tiny", "keypoints").policy, [tmp / "expert.zarr"],
+    policy = train(PolicyModule, policy_profile("tiny", "keypoints", LAYOUT).config, [tmp / "expert.zarr"],
                           RunConfig(run_dir=tmp / "policy", max_steps=20, **run))
-    wm = train_world_model(world_model_profile("tiny", 1).config, [tmp / "expert.zarr"],
+    wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT).config, [tmp / "expert.zarr"],
                            RunConfig(run_dir=tmp / "wm", max_steps=20, **run))
     return {"policy": str(policy.last), "wm": str(wm.last), "dir": str(tmp)}
 
@@ -57,9 +60,9 @@ def histories(seeds, sim: bool = False) -> dict[str, np.ndarray]:
 
 
 def planner(ckpts, **kw) -> Planner:
-    config = PlannerConfig(**kw)
+    config = PlannerConfig(**{"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high, **kw})
     policy = PolicyModule.load_from_checkpoint(ckpts["policy"])
-    return Planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), "pusht"), policy)
+    return Planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), PUSHT), policy)
 
 
 def gens(seeds, sampling_seed: int = 0):
@@ -124,7 +127,7 @@ def test_gradient_steps_raise_the_predicted_reward(ckpts):
 
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
     """The gt-sim planner's predicted rewards equal those the episode's own scene then produces."""
-    reward = build_reward(RewardSpec(), "pusht")
+    reward = build_reward(RewardSpec(), PUSHT)
     p = Planner(PlannerConfig(kind="rank", num_proposals=8, keep_futures=True), SimulatorModel(), reward,
                 PolicyModule.load_from_checkpoint(ckpts["policy"]))
     for seed in (100000, 100003):
@@ -147,7 +150,7 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
 
 def test_deployment_api_acts_on_one_history(ckpts):
     """The README's example: checkpoints + a reward -> ``act(obs_history)``, no simulator."""
-    reward = RegistrationReward(torch.as_tensor(REWARD_VERTICES), torch.tensor([256.0, 256.0, np.pi / 4]))
+    reward = RegistrationReward(torch.tensor(LAYOUT.target.vertices), torch.tensor([256.0, 256.0, np.pi / 4]), LAYOUT.state.object_pose)
     p = load_planner(ckpts["policy"], ckpts["wm"], reward, PlannerConfig(kind="rank-opt", num_proposals=3, opt_steps=2))
     obs = {k: v[0] for k, v in histories((100000,)).items()}
     chunk = p.act(obs, torch.Generator().manual_seed(0))
@@ -202,7 +205,7 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
 
 
 def test_compare_tells_apart_runs_of_one_controller():
-    from gpc_cli.compare import _tell_apart
+    from gpc.harness.comparison import _tell_apart
 
     rows = [{"label": "bc", "path": "r/a/bc"}, {"label": "rank K=8", "path": "r/a/rank"}, {"label": "rank K=8", "path": "r/b/rank"},
             {"label": "opt M=5", "path": "r/a/opt"}, {"label": "opt M=5", "path": "r/a/opt-wm2+r/c/opt-wm2"}]
@@ -242,7 +245,7 @@ def test_recipe_is_picklable_and_labels(ckpts):
     recipe = PlannerRecipe(ckpts["policy"], PlannerConfig(kind="rank", num_proposals=7), "gt-sim")
     assert pickle.loads(pickle.dumps(recipe)).label == "gt-sim K=7"
     assert dataclasses.replace(recipe, planner=None, world_model=None).label == "bc"
-    assert REWARD_VERTICES.shape == (8, 2)
+    assert len(LAYOUT.target.vertices) == 8
 
 
 def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
@@ -272,17 +275,16 @@ def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
 
 def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
     """Image policy + visual world model + learned image reward, end to end through `gpc eval`."""
-    from models.reward_predictor import reward_profile
-    from models.reward_training import train_reward_predictor
-    from tasks.pusht import geometry
+    from gpc.models.rewards.learned import reward_profile
+    from gpc.models.rewards.learned import RewardPredictorModule
 
-    collect(CollectJob(out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
+    collect(CollectJob(task="pusht", out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
     data, run = [tmp_path / "img.zarr"], dict(batch_size=8, progress=False, accelerator="cpu")
-    policy = train_policy(policy_profile("tiny", "image").policy, data, RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
-    wm = train_world_model(world_model_profile("tiny", 1, obs="image").config, data,
+    policy = train(PolicyModule, policy_profile("tiny", "image", LAYOUT).config, data, RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
+    wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT, obs="image").config, data,
                            RunConfig(run_dir=tmp_path / "w", max_steps=3, **run))
-    reward_config = reward_profile("tiny").config.with_task(geometry.TEE_BOXES.reshape(-1, 2), geometry.GOAL_POSE, geometry.WORKSPACE)
-    reward = train_reward_predictor(reward_config, data, RunConfig(run_dir=tmp_path / "r", max_steps=3, **run))
+    reward_config = reward_profile("tiny", LAYOUT).config
+    reward = train(RewardPredictorModule, reward_config, data, RunConfig(run_dir=tmp_path / "r", max_steps=3, **run))
     out = tmp_path / "vision"
     res = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "rank", "-K", "3", "--world-model", str(wm.last),
                                    "--reward", "learned", "--reward-checkpoint", str(reward.last),

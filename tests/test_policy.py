@@ -13,15 +13,17 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from datasets.datamodule import EpisodeDataModule
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
-from gpc_cli.train import train_app
-from models.denoiser import ActionDenoiser
-from models.policy import PolicyModule
-from models.policy_config import policy_profile
-from models.protocols import ActionProposer
-from models.training import RunConfig, TrainingDiverged, data_config, train_policy
+from gpc.datasets.datamodule import EpisodeDataModule
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
+from gpc.cli.train import train_app
+from gpc.models.policy.denoiser import ActionDenoiser
+from gpc.models.policy.module import PolicyModule
+from gpc.models.policy.config import policy_profile
+from gpc.models.planning.protocols import ActionProposer
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import TrainingDiverged, train
+from gpc.tasks.pusht import LAYOUT
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +46,7 @@ def make_store(path: Path, episodes: int = 6, length: int = 40, image: int = 16,
 
 
 def tiny(obs: str = "state", **optim):
-    policy = policy_profile("tiny", obs).policy
+    policy = policy_profile("tiny", obs, LAYOUT).config
     if obs == "image":
         policy = dataclasses.replace(policy, encoder=dataclasses.replace(policy.encoder, crop_size=12))
     if optim:
@@ -65,7 +67,7 @@ def store(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def trained(store, tmp_path_factory):
     """A state policy trained 50 steps on the tiny store (lr 3e-3, warm-up 5)."""
-    return train_policy(tiny(), [store], run(tmp_path_factory.mktemp("runs"), "state", max_steps=50, checkpoint_every=20))
+    return train(PolicyModule, tiny(), [store], run(tmp_path_factory.mktemp("runs"), "state", max_steps=50, checkpoint_every=20))
 
 
 def _history(store: Path, episode: int = 0, step: int = 5) -> dict[str, np.ndarray]:
@@ -74,7 +76,7 @@ def _history(store: Path, episode: int = 0, step: int = 5) -> dict[str, np.ndarr
 
 
 def test_loss_decreases_over_fifty_steps(trained, store):
-    data = EpisodeDataModule(data_config(trained.module.config, [store], run(Path("/unused"), "x", batch_size=64)))
+    data = EpisodeDataModule(PolicyModule.data_config(trained.module.config, (str(store),), run(Path("/unused"), "x", batch_size=64), (0, 0.05)))
     batch = next(iter(data.train_dataloader()))
     fresh = PolicyModule(trained.module.config, normalizer=data.normalizer)
 
@@ -157,18 +159,18 @@ def test_wrong_kind_task_obs_and_corrupt_checkpoints(trained, tmp_path):
 
 
 def test_resume_continues_the_step_count(store, tmp_path):
-    first = train_policy(tiny(), [store], run(tmp_path, "r", max_steps=6))
+    first = train(PolicyModule, tiny(), [store], run(tmp_path, "r", max_steps=6))
     assert first.global_step == 6
     with pytest.raises(DataError, match="already holds a training run"):
-        train_policy(tiny(), [store], run(tmp_path, "r", max_steps=12))
-    second = train_policy(tiny(), [store], run(tmp_path, "r", max_steps=12, resume=True))
+        train(PolicyModule, tiny(), [store], run(tmp_path, "r", max_steps=12))
+    second = train(PolicyModule, tiny(), [store], run(tmp_path, "r", max_steps=12, resume=True))
     assert second.global_step == 12
     ckpt = torch.load(second.last, weights_only=True)
     assert ckpt["global_step"] == 12 and int(ckpt["state_dict"]["ema.updates"]) == 12
     with pytest.raises(DataError, match="nothing to resume"):
-        train_policy(tiny(), [store], run(tmp_path, "fresh", resume=True))
+        train(PolicyModule, tiny(), [store], run(tmp_path, "fresh", resume=True))
     with pytest.raises(DataError, match="obs 'state', not 'keypoints'"):
-        train_policy(tiny("keypoints"), [store], run(tmp_path, "r", max_steps=14, resume=True))
+        train(PolicyModule, tiny("keypoints"), [store], run(tmp_path, "r", max_steps=14, resume=True))
 
 
 def test_non_finite_loss_stops_and_keeps_the_last_good_weights(store, tmp_path, monkeypatch):
@@ -184,7 +186,7 @@ def test_non_finite_loss_stops_and_keeps_the_last_good_weights(store, tmp_path, 
 
     monkeypatch.setattr(ActionDenoiser, "loss", loss_going_nan)
     with pytest.raises(TrainingDiverged, match="non-finite at step 3"):
-        train_policy(tiny(), [store], run(tmp_path, "nan", max_steps=20))
+        train(PolicyModule, tiny(), [store], run(tmp_path, "nan", max_steps=20))
     monkeypatch.undo()
     ckpt = torch.load(tmp_path / "nan" / "checkpoints" / "last.ckpt", weights_only=True)
     assert ckpt["global_step"] <= 4 and int(ckpt["state_dict"]["ema.updates"]) == 3
@@ -193,7 +195,7 @@ def test_non_finite_loss_stops_and_keeps_the_last_good_weights(store, tmp_path, 
 
 @pytest.mark.parametrize("obs", ["keypoints", "image"])
 def test_keypoint_and_image_policies_train_and_sample(store, tmp_path, obs):
-    result = train_policy(tiny(obs), [store], run(tmp_path, obs, max_steps=3))
+    result = train(PolicyModule, tiny(obs), [store], run(tmp_path, obs, max_steps=3))
     policy = PolicyModule.load_from_checkpoint(result.last, obs_type=obs)
     shapes = dict(policy.config.encoder.obs_shapes)
     assert shapes["state"] == (5,) and (shapes.get("keypoint") == (9, 2) or shapes.get("img") == (16, 16, 3))
@@ -204,7 +206,7 @@ def test_keypoint_and_image_policies_train_and_sample(store, tmp_path, obs):
 def test_dataset_without_the_obs_key_is_a_clear_error(tmp_path):
     path = make_store(tmp_path / "nokp.zarr", episodes=2, keypoints=False)
     with pytest.raises(DataError, match=r"nokp.zarr: missing key data/keypoint"):
-        train_policy(tiny("keypoints"), [path], run(tmp_path, "kp"))
+        train(PolicyModule, tiny("keypoints"), [path], run(tmp_path, "kp"))
 
 
 def test_cli_trains_and_reports_errors(store, tmp_path):
@@ -228,7 +230,7 @@ def test_cli_trains_and_reports_errors(store, tmp_path):
 
 
 def test_policy_trains_on_the_human_data(human_data, tmp_path):
-    result = train_policy(tiny("keypoints"), [human_data], run(tmp_path, "human", max_steps=2, batch_size=32))
+    result = train(PolicyModule, tiny("keypoints"), [human_data], run(tmp_path, "human", max_steps=2, batch_size=32))
     assert result.global_step == 2
     assert dict(result.module.config.encoder.obs_shapes) == {"keypoint": (9, 2), "state": (5,)}
     assert result.best is None or result.best.is_file()
@@ -236,7 +238,7 @@ def test_policy_trains_on_the_human_data(human_data, tmp_path):
 
 def test_two_process_ddp_on_cpu(store, tmp_path):
     out = tmp_path / "ddp"
-    cmd = [sys.executable, "-m", "gpc_cli.train", "policy", "--dataset", str(store), "--out", str(out),
+    cmd = [sys.executable, "-m", "gpc.cli.train", "policy", "--dataset", str(store), "--out", str(out),
            "--profile", "tiny", "--max-steps", "3", "--batch-size", "8", "--accelerator", "cpu", "--devices", "2",
            "--strategy", "ddp", "--no-progress"]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}

@@ -7,14 +7,15 @@ import math
 import pytest
 import torch
 
-from models.config_io import from_plain
-from models.diffusion import DiffusionSampler, NoiseConfig, NoiseSchedule, SamplerConfig, squaredcos_betas
-from models.ema import EMAConfig, EMAWeights
-from models.encoders import EncoderConfig, ObsEncoder, crop_images
-from models.optim import cosine_with_warmup
-from models.policy_config import PolicyConfig, policy_profile
-from models.resnet import ResNet18Trunk, SpatialSoftmax
-from models.unet1d import ConditionalUnet1D, UNetConfig
+from gpc.models.training.config_io import from_plain
+from gpc.models.networks.ddpm import DiffusionSampler, NoiseConfig, NoiseSchedule, SamplerConfig, squaredcos_betas
+from gpc.models.training.ema import EMAConfig, EMAWeights
+from gpc.models.networks.encoders import EncoderConfig, ObsEncoder, crop_images
+from gpc.models.training.optim import cosine_with_warmup
+from gpc.models.policy.config import PolicyConfig, policy_profile
+from gpc.models.networks.resnet import ResNet18Trunk, SpatialSoftmax
+from gpc.models.networks.unet1d import ConditionalUnet1D, UNetConfig
+from gpc.tasks.pusht import LAYOUT
 
 SCHEDULE = NoiseSchedule(NoiseConfig())
 
@@ -131,7 +132,7 @@ def test_cosine_schedule_with_warmup():
 
 
 def test_configs_round_trip_and_validate():
-    cfg = policy_profile("cpu", "keypoints").policy.with_obs_shapes({"keypoint": (9, 2), "state": (5,)})
+    cfg = policy_profile("cpu", "keypoints", LAYOUT).config.with_obs_shapes({"keypoint": (9, 2), "state": (5,)})
     plain = cfg.to_dict()
     assert PolicyConfig.from_dict(plain) == cfg
     listed = {**plain, "unet": {**plain["unet"], "down_dims": [64, 128, 256]}}
@@ -139,15 +140,15 @@ def test_configs_round_trip_and_validate():
     with pytest.raises(ValueError, match="unknown field"):
         from_plain(UNetConfig, {"widths": (1,)})
     with pytest.raises(ValueError, match="multiple of 4"):
-        PolicyConfig(horizon=10)
+        PolicyConfig(task="pusht", action_dim=2, horizon=10)
     with pytest.raises(ValueError, match="obs type"):
         EncoderConfig("lidar")
     with pytest.raises(ValueError, match="n_groups"):
         UNetConfig(down_dims=(12, 24))
     with pytest.raises(ValueError, match="profile"):
-        policy_profile("huge", "state")
+        policy_profile("huge", "state", LAYOUT)
     with pytest.raises(ValueError, match="needs data key"):
-        PolicyConfig().with_obs_shapes({"keypoint": (9, 2)})
+        PolicyConfig(task="pusht", action_dim=2).with_obs_shapes({"keypoint": (9, 2)})
 
 
 def test_unet_has_diffusion_policys_size_and_shapes():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from models.reward import RegistrationReward, Reward, RewardConfig, registration_distance
+from gpc.models.rewards.registration import RegistrationReward, Reward, RewardConfig, registration_distance
+from gpc.tasks.pusht import LAYOUT
 
 TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
 GOAL = torch.tensor([256.0, 256.0, math.pi / 4])
@@ -20,9 +21,9 @@ def states(poses: list[list[float]], agent=(100.0, 100.0)) -> torch.Tensor:
 
 
 def test_zero_at_goal_negative_elsewhere_and_equal_to_the_task_geometry():
-    from tasks.pusht.geometry import GOAL_POSE, registration_error
+    from gpc.tasks.pusht.geometry import GOAL_POSE, registration_error
 
-    reward = RegistrationReward(TEE, GOAL)
+    reward = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)
     poses = [[256.0, 256.0, math.pi / 4], [256.0, 256.0, math.pi / 4 + 2 * math.pi], [266.0, 256.0, math.pi / 4],
              [100.0, 400.0, 2.0], [256.0, 256.0, math.pi / 4 + math.pi]]
     r = reward(states(poses))
@@ -35,7 +36,7 @@ def test_zero_at_goal_negative_elsewhere_and_equal_to_the_task_geometry():
 
 
 def test_gradient_is_finite_at_the_goal_and_points_towards_it():
-    reward = RegistrationReward(TEE, GOAL)
+    reward = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)
     x = states([[256.0, 256.0, math.pi / 4], [300.0, 240.0, 1.0]]).requires_grad_(True)
     reward(x).sum().backward()
     assert torch.isfinite(x.grad).all()
@@ -48,17 +49,17 @@ def test_gradient_is_finite_at_the_goal_and_points_towards_it():
 
 def test_final_step_by_default_or_a_discounted_sum():
     poses = torch.tensor([[[0, 0, 256, 256 + 10 * t, math.pi / 4] for t in (3, 2, 1, 0)]], dtype=torch.float32)
-    final = RegistrationReward(TEE, GOAL)(poses)
+    final = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)(poses)
     assert float(final[0]) == pytest.approx(0.0, abs=1e-3)
-    disc = RegistrationReward(TEE, GOAL, RewardConfig(aggregate="discounted", discount=0.5))(poses)
+    disc = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose, RewardConfig(aggregate="discounted", discount=0.5))(poses)
     assert float(disc[0]) == pytest.approx(-(30 + 0.5 * 20 + 0.25 * 10), abs=1e-2)
     with pytest.raises(ValueError, match="aggregate 'best'"):
         RewardConfig(aggregate="best")
-    assert isinstance(RegistrationReward(TEE, GOAL), Reward)
+    assert isinstance(RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose), Reward)
 
 
 def test_per_candidate_goals_and_batched_shapes():
-    reward = RegistrationReward(TEE, GOAL)
+    reward = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)
     goals = torch.tensor([[100.0, 100.0, 0.0], [300.0, 300.0, 1.0]])
     x = torch.cat([torch.zeros(2, 3, 2), goals[:, None].expand(2, 3, 3)], dim=-1)
     assert torch.allclose(reward(x, goal=goals), torch.zeros(2), atol=1e-4)

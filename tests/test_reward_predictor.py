@@ -12,17 +12,19 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
-from gpc_cli.reward import reward_app
-from models.reward import RegistrationReward, Reward, RewardConfig
-from models.reward_predictor import (
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
+from gpc.cli.reward import reward_app
+from gpc.models.rewards.registration import RegistrationReward, Reward, RewardConfig
+from gpc.models.rewards.learned import (
     ImageReward, RewardPredictorConfig, RewardPredictorModule, random_blur, random_shift, reward_profile,
 )
-from models.reward_training import evaluate_reward_predictor, train_reward_predictor
-from models.training import RunConfig
-from tasks.pusht import geometry
-from tasks.pusht.render import draw_scene, draw_state
+from gpc.models.rewards.learned_eval import evaluate_reward_predictor
+from gpc.models.training.trainer import train
+from gpc.models.training.config import RunConfig
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.render import draw_scene, draw_state
+from gpc.tasks.pusht import LAYOUT
 
 GOAL = torch.tensor(geometry.GOAL_POSE, dtype=torch.float32)
 
@@ -45,7 +47,7 @@ def make_store(path: Path, episodes: int = 6, length: int = 12, seed: int = 0) -
 
 
 def tiny(**kw) -> RewardPredictorConfig:
-    config = reward_profile("tiny").config.with_task(geometry.TEE_BOXES.reshape(-1, 2), geometry.GOAL_POSE, geometry.WORKSPACE)
+    config = reward_profile("tiny", LAYOUT).config
     return dataclasses.replace(config, **kw)
 
 
@@ -64,7 +66,7 @@ def store(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def trained(store, tmp_path_factory):
-    return train_reward_predictor(tiny(), [store], run(tmp_path_factory.mktemp("runs"), "reward"))
+    return train(RewardPredictorModule, tiny(), [store], run(tmp_path_factory.mktemp("runs"), "reward"))
 
 
 def _frames(store: Path, episode: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
@@ -131,7 +133,7 @@ def test_image_reward_shapes_goals_aggregation_and_gradients(trained, store):
     assert torch.allclose(reward(futures, goal=poses[:, -1]), torch.zeros(3), atol=1e-3)
     # the same numbers as the state reward on the predicted poses (one reward interface)
     states = torch.cat([torch.zeros(3, 2, 2), poses], dim=-1)
-    assert torch.allclose(RegistrationReward(geometry.TEE_BOXES, GOAL)(states), score.detach(), atol=1e-4)
+    assert torch.allclose(RegistrationReward(geometry.TEE_BOXES, GOAL, LAYOUT.state.object_pose)(states), score.detach(), atol=1e-4)
     other = ImageReward(trained.module.predictor, goal=[100.0, 100.0, 0.0])
     assert not torch.allclose(other(futures), score.detach())
     with pytest.raises(ValueError, match=r"expected \(K, T, 3, S, S\)"):
@@ -160,14 +162,16 @@ def test_shift_augmentation_moves_the_label_with_the_picture():
 
 def test_config_validation_and_task_fields():
     with pytest.raises(ValueError, match="pool 'max'"):
-        RewardPredictorConfig(pool="max")
+        RewardPredictorConfig(task="pusht", pool="max")
+    with pytest.raises(ValueError, match="task must be named"):
+        RewardPredictorConfig()
     with pytest.raises(ValueError, match="with_task"):
-        reward_profile("tiny").config.check_task()
+        RewardPredictorConfig(task="pusht").check_task()
     with pytest.raises(ValueError, match="profile 'huge'"):
-        reward_profile("huge")
+        reward_profile("huge", LAYOUT)
     config = tiny()
     assert RewardPredictorConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
-    assert reward_profile("paper").config.mlp_dims == (512, 256, 128) and reward_profile("paper").config.resnet_width == 64
+    assert reward_profile("paper", LAYOUT).config.mlp_dims == (512, 256, 128) and reward_profile("paper", LAYOUT).config.resnet_width == 64
 
 
 def test_evaluation_against_the_true_registration_loss(trained, store):

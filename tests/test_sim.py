@@ -2,10 +2,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import tasks.pusht  # noqa: F401  (registers gpc/PushT-v0)
-from tasks.pusht import fidelity
-from tasks.pusht.env import PushTEnv, initial_state
-from tasks.pusht.sim import PushTSim
+import gpc.tasks.pusht  # noqa: F401  (registers gpc/PushT-v0)
+from gpc.tasks.pusht import fidelity
+from gpc.tasks.pusht.env import PushTEnv, initial_state
+from gpc.tasks.pusht.sim import PushTSim
 
 
 def test_seed_reset_reproduces_diffusion_policy_test_seed():

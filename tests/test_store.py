@@ -1,4 +1,3 @@
-import json
 import os
 import signal
 import subprocess
@@ -10,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -100,7 +99,7 @@ WRITER = textwrap.dedent(
     """
     import sys, numpy as np
     sys.path.insert(0, {root!r})
-    from datasets.store import EpisodeStore
+    from gpc.datasets.store import EpisodeStore
     store = EpisodeStore.create({path!r}, {{"task": "test"}})
     rng = np.random.default_rng(0)
     i = 0

@@ -12,17 +12,19 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-import models.world_model_training as wmt
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
-from gpc_cli.world_model import frame_readout, world_model_app
-from models.edm import EDMConfig, EulerConfig, karras_sigmas
-from models.training import RunConfig
-from models.visual_world_model_eval import evaluate_visual_rollouts
-from models.world_model import WorldModel, WorldModelModule
-from models.world_model_config import VisualWorldModelConfig, world_model_profile
-from models.world_model_training import train_world_model
-from tasks.pusht.render import draw_state
+import gpc.models.training.trainer as wmt
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
+from gpc.cli.world_model import world_model_app
+from gpc.models.networks.edm import EDMConfig, EulerConfig, karras_sigmas
+from gpc.models.training.config import RunConfig
+from gpc.models.world_models.eval_visual import ColourReadout, evaluate_visual_rollouts
+from gpc.models.planning.protocols import WorldModel
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.config import VisualWorldModelConfig, world_model_profile
+from gpc.models.training.trainer import train
+from gpc.tasks.pusht.render import draw_state
+from gpc.tasks.pusht import LAYOUT
 
 SIZE = 32  # stored frame size (the tiny model works at 16 px)
 
@@ -65,7 +67,7 @@ def run(tmp: Path, name: str, **kw) -> RunConfig:
 
 
 def tiny(phase: int = 1, **kw) -> VisualWorldModelConfig:
-    return dataclasses.replace(world_model_profile("tiny", phase, obs="image").config, **kw)
+    return dataclasses.replace(world_model_profile("tiny", phase, LAYOUT, obs="image").config, **kw)
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -83,12 +85,12 @@ def runs(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def phase1(store, runs):
-    return train_world_model(tiny(1), [store], run(runs, "vwm-phase1", max_steps=40, checkpoint_every=20))
+    return train(WorldModelModule, tiny(1), [store], run(runs, "vwm-phase1", max_steps=40, checkpoint_every=20))
 
 
 @pytest.fixture(scope="module")
 def phase2(store, runs, phase1):
-    return train_world_model(tiny(2), [store], run(runs, "vwm-phase2", max_steps=6), init=phase1.last)
+    return train(WorldModelModule, tiny(2), [store], run(runs, "vwm-phase2", max_steps=6), init=phase1.last)
 
 
 def _windows(store: Path, model: WorldModelModule, starts=((0, 3), (1, 9), (2, 15))) -> tuple[torch.Tensor, torch.Tensor]:
@@ -123,7 +125,7 @@ def _fixed_loss(module: WorldModelModule, store: Path, unroll: int = 1) -> float
 def test_edm_schedule_and_preconditioning():
     sig = karras_sigmas(3, 2e-3, 5.0, 7.0)  # middle: ((5 ** (1 / 7) + 0.002 ** (1 / 7)) / 2) ** 7
     assert torch.allclose(sig, torch.tensor([5.0, 0.2831, 2e-3, 0.0]), rtol=1e-3)
-    from models.edm import Denoiser
+    from gpc.models.networks.edm import Denoiser
 
     cs = Denoiser(torch.nn.Identity(), EDMConfig()).conditioners(torch.tensor([0.0, 1.0]))
     s = torch.tensor([0.1, math.sqrt(1.01)])  # sigma with the offset noise folded in
@@ -150,7 +152,7 @@ def test_phase_two_starts_from_phase_one_and_unrolls(phase1, phase2, store, runs
     ckpt = torch.load(phase2.last, weights_only=True)
     assert ckpt["gpc"]["phase"] == 2 and ckpt["hyper_parameters"]["data"]["init"] == str(phase1.last)
     monkeypatch.setattr(wmt, "fit_module", lambda module, *args, **kw: module)  # build, do not train
-    start = train_world_model(tiny(2, feedback="sampled"), [store], run(runs, "p2-start"), init=phase1.last)
+    start = train(WorldModelModule, tiny(2, feedback="sampled"), [store], run(runs, "p2-start"), init=phase1.last)
     assert start.config.dynamics == phase1.module.config.dynamics and start.config.feedback == "sampled"
     want, got = phase1.module.state_dict(), start.state_dict()
     assert want.keys() == got.keys() and all(torch.equal(want[k], got[k]) for k in want)
@@ -208,7 +210,7 @@ def test_batched_rollouts_equal_one_by_one(phase2, store):
 
 
 def test_eval_reports_figures_and_a_grid(phase2, store):
-    report, grid = evaluate_visual_rollouts(phase2.module, [store], split="all", readout=frame_readout("pusht"),
+    report, grid = evaluate_visual_rollouts(phase2.module, [store], split="all", readout=ColourReadout.from_layout(LAYOUT),
                                             stride=4, grid_windows=2)
     assert report["windows"] > 10 and len(report["steps"]) == 2 and report["steps"][1]["actions"] == 4
     for row in report["steps"]:
@@ -231,15 +233,15 @@ def test_eval_reports_figures_and_a_grid(phase2, store):
 def test_readout_reads_the_block_pose_from_rendered_frames():
     states = np.array([[100.0, 100.0, 250.0, 260.0, a] for a in (0.3, 1.7, 3.5, 5.9)])
     frames = np.stack([draw_state(s, size=96) for s in states])
-    pose = frame_readout("pusht").object_pose(frames)
+    pose = ColourReadout.from_layout(LAYOUT).object_pose(frames)
     cy = (3600 * 15 + 2700 * 75) / 6300  # the T's centroid in its body frame is (0, cy)
     centre = states[:, 2:4] + np.stack([-np.sin(states[:, 4]), np.cos(states[:, 4])], axis=1) * cy
     assert np.abs(pose[:, :2] - centre).max() < 3.0
     turn = np.abs((pose[:, 2] - states[:, 4] + np.pi) % (2 * np.pi) - np.pi)
     assert turn.max() < np.deg2rad(3)
-    readout = frame_readout("pusht")
+    readout = ColourReadout.from_layout(LAYOUT)
     # Its vertices sit about the centroid it reads: placed at the read pose they land on the T's true vertices.
-    from tasks.pusht.geometry import tee_vertices, to_world
+    from gpc.tasks.pusht.geometry import tee_vertices, to_world
 
     read = to_world(readout.pose_vertices, pose)
     assert np.abs(read - tee_vertices(states[:, 2:5]).reshape(len(states), 8, 2)).max() < 4.0
@@ -253,20 +255,20 @@ def test_bad_inputs_are_one_line_errors(phase1, store, runs, tmp_path):
     ckpt["gpc"]["kind"] = "policy"
     torch.save(ckpt, tmp_path / "policy.ckpt")
     with pytest.raises(DataError, match="is a 'policy' checkpoint, expected a 'world_model' checkpoint") as err:
-        train_world_model(tiny(2), [store], run(tmp_path, "p2"), init=tmp_path / "policy.ckpt")
+        train(WorldModelModule, tiny(2), [store], run(tmp_path, "p2"), init=tmp_path / "policy.ckpt")
     assert "\n" not in str(err.value)
     state = dict(ckpt, gpc={**ckpt["gpc"], "kind": "world_model", "obs": "state"})
     torch.save(state, tmp_path / "state.ckpt")
     with pytest.raises(DataError, match="has obs 'state', expected 'image'"):
-        train_world_model(tiny(2), [store], run(tmp_path, "p2s"), init=tmp_path / "state.ckpt")
+        train(WorldModelModule, tiny(2), [store], run(tmp_path, "p2s"), init=tmp_path / "state.ckpt")
     nan = make_store(tmp_path / "nan.zarr", episodes=2, float_nan=True)
     with pytest.raises(DataError, match=r"nan.zarr: data/img holds NaN or inf"):
-        train_world_model(tiny(1), [nan], run(tmp_path, "nan"))
+        train(WorldModelModule, tiny(1), [nan], run(tmp_path, "nan"))
     other = make_store(tmp_path / "small.zarr", episodes=3, size=24)
     with pytest.raises(DataError, match=r"small.zarr: data/img rows are \(24, 24, 3\), other stores have \(32, 32, 3\)"):
-        train_world_model(tiny(1), [store, other], run(tmp_path, "mixed"))
+        train(WorldModelModule, tiny(1), [store, other], run(tmp_path, "mixed"))
     with pytest.warns(UserWarning, match="frames are 24 px, the model's earlier training used 32 px; resizing 24 -> 16"):
-        result = train_world_model(tiny(2), [other], run(tmp_path, "p2small", max_steps=1), init=phase1.last)
+        result = train(WorldModelModule, tiny(2), [other], run(tmp_path, "p2small", max_steps=1), init=phase1.last)
     assert result.global_step == 1
     assert not (runs / "vwm-phase1" / "checkpoints" / "last.ckpt.tmp").exists()
 
@@ -306,13 +308,12 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path):
 
 def test_eval_can_read_poses_with_the_learned_reward_predictor(phase2, store, tmp_path):
     """`--pose-reader`: the block pose read by a (real, briefly trained) reward predictor, as the planner's reward sees it."""
-    from models.reward_predictor import reward_profile
-    from models.reward_training import train_reward_predictor
-    from models.training import RunConfig
-    from tasks.pusht import geometry
+    from gpc.models.rewards.learned import reward_profile
+    from gpc.models.rewards.learned import RewardPredictorModule
+    from gpc.models.training.config import RunConfig
 
-    config = reward_profile("tiny").config.with_task(geometry.TEE_BOXES.reshape(-1, 2), geometry.GOAL_POSE, geometry.WORKSPACE)
-    reader = train_reward_predictor(config, [store], RunConfig(run_dir=tmp_path / "reward", max_steps=3, batch_size=8,
+    config = reward_profile("tiny", LAYOUT).config
+    reader = train(RewardPredictorModule, config, [store], RunConfig(run_dir=tmp_path / "reward", max_steps=3, batch_size=8,
                                                                progress=False, accelerator="cpu")).last
     cli = CliRunner()
     ev = cli.invoke(world_model_app, ["eval", str(phase2.last), "--dataset", str(store), "--split", "all", "--episodes", "2",

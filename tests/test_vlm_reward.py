@@ -17,7 +17,8 @@ import pytest
 import torch
 
 from benchmarks.vlm_server import Reply, ScriptedChatServer
-from models.vlm_reward import GAP, VLMConfig, VLMReward, parse_choice, tile_frames
+from gpc.models.rewards.vlm import GAP, VLMConfig, VLMReward, parse_choice, tile_frames
+from gpc.tasks.pusht import LAYOUT
 
 KEY_ENV, KEY = "GPC_TEST_VLM_KEY", "sk-test-secret-0123456789"
 SIZE = 96
@@ -54,7 +55,7 @@ def _env(monkeypatch):
 
 
 def warnings_of(caplog) -> list[str]:
-    return [r.getMessage() for r in caplog.records if r.name == "models.vlm_reward" and r.levelno == logging.WARNING]
+    return [r.getMessage() for r in caplog.records if r.name == "gpc.models.rewards.vlm" and r.levelno == logging.WARNING]
 
 
 def test_a_valid_answer_selects_that_candidate_and_the_request_carries_image_prompt_and_settings(caplog):
@@ -211,14 +212,14 @@ def test_tiles_are_numbered_and_laid_out_in_rows():
 
 
 def test_pusht_frames_from_the_real_renderer_and_the_registration_fallback():
-    from models.reward import RegistrationReward
-    from tasks.pusht import render_state
-    from tasks.pusht.geometry import GOAL_POSE, TEE_BOXES
+    from gpc.models.rewards.registration import RegistrationReward
+    from gpc.tasks.pusht import render_state
+    from gpc.tasks.pusht.geometry import GOAL_POSE, TEE_BOXES
 
     states = torch.tensor([[[100, 100, 256, 256, np.pi / 4]], [[400, 120, 300, 200, 1.0]],
                            [[200, 420, 150, 330, 2.5]]], dtype=torch.float64).repeat(1, 3, 1)  # (K=3, T=3, 5)
     goal = torch.tensor(GOAL_POSE, dtype=torch.float64)
-    registration = RegistrationReward(torch.tensor(TEE_BOXES).reshape(-1, 2), goal)
+    registration = RegistrationReward(torch.tensor(TEE_BOXES).reshape(-1, 2), goal, LAYOUT.state.object_pose)
     with ScriptedChatServer([Reply("2"), Reply("no idea")]) as server:
         vlm = VLMReward(VLMConfig(base_url=server.base_url, model="test-vl", timeout_s=2.0, max_retries=0,
                                   api_key_env=KEY_ENV),

@@ -2,11 +2,11 @@ import numpy as np
 import pytest
 import torch
 
-from datasets.datamodule import DataConfig, EpisodeDataModule
-from datasets.errors import DataError
-from datasets.normalizer import MinMaxNormalizer
-from datasets.sequence import WindowSpec, split_episodes, window_indices, window_starts
-from datasets.store import EpisodeStore
+from gpc.datasets.datamodule import DataConfig, EpisodeDataModule
+from gpc.datasets.errors import DataError
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.datasets.sequence import WindowSpec, split_episodes, window_indices, window_starts
+from gpc.datasets.store import EpisodeStore
 
 
 def test_windows_pad_like_diffusion_policy():

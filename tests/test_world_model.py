@@ -12,18 +12,22 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-import models.world_model_training as wmt
-from datasets.datamodule import EpisodeDataModule
-from datasets.errors import DataError
-from datasets.store import EpisodeStore
-from gpc_cli.world_model import world_model_app
-from models.checkpoint import checkpoint_meta
-from models.reward import RegistrationReward
-from models.training import RunConfig, TrainingDiverged
-from models.world_model import WorldModel, WorldModelModule
-from models.world_model_config import WorldModelConfig, world_model_profile
-from models.world_model_eval import evaluate_rollouts
-from models.world_model_training import train_world_model, world_model_data_config
+import gpc.models.training.trainer as wmt
+import gpc.models.world_models.module as wm_module
+from gpc.datasets.datamodule import EpisodeDataModule
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
+from gpc.cli.main import app
+from gpc.cli.world_model import world_model_app
+from gpc.models.training.checkpoint import checkpoint_meta
+from gpc.models.rewards.registration import RegistrationReward
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import TrainingDiverged, train
+from gpc.models.planning.protocols import WorldModel
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.config import WorldModelConfig, world_model_profile
+from gpc.models.world_models.eval_state import evaluate_rollouts
+from gpc.tasks.pusht import LAYOUT
 
 TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
 GOAL = torch.tensor([256.0, 256.0, math.pi / 4])
@@ -67,7 +71,7 @@ def run(tmp: Path, name: str, **kw) -> RunConfig:
 
 
 def tiny(phase: int = 1, **kw) -> WorldModelConfig:
-    return dataclasses.replace(world_model_profile("tiny", phase).config, **kw)
+    return dataclasses.replace(world_model_profile("tiny", phase, LAYOUT).config, **kw)
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -85,16 +89,16 @@ def runs(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def phase1(store, runs):
-    return train_world_model(tiny(1), [store], run(runs, "wm-phase1", max_steps=80, checkpoint_every=40))
+    return train(WorldModelModule, tiny(1), [store], run(runs, "wm-phase1", max_steps=80, checkpoint_every=40))
 
 
 @pytest.fixture(scope="module")
 def phase2(store, runs, phase1):
-    return train_world_model(tiny(2), [store], run(runs, "wm-phase2", max_steps=40), init=phase1.last)
+    return train(WorldModelModule, tiny(2), [store], run(runs, "wm-phase2", max_steps=40), init=phase1.last)
 
 
 def _batch(store: Path, config: WorldModelConfig) -> dict[str, torch.Tensor]:
-    data = EpisodeDataModule(world_model_data_config(config, [store], run(Path("/unused"), "x", batch_size=128)))
+    data = EpisodeDataModule(WorldModelModule.data_config(config, (str(store),), run(Path("/unused"), "x", batch_size=128), (0, 0.25)))
     return next(iter(data.train_dataloader()))
 
 
@@ -122,7 +126,7 @@ def test_phase_one_loss_decreases(phase1, store):
 
 def test_phase_two_starts_from_phase_one_weights(phase1, store, runs, monkeypatch):
     monkeypatch.setattr(wmt, "fit_module", lambda module, *args, **kw: module)  # build, do not train
-    start = train_world_model(tiny(2, dynamics=dataclasses.replace(tiny().dynamics, width=64)), [store],
+    start = train(WorldModelModule, tiny(2, dynamics=dataclasses.replace(tiny().dynamics, width=64)), [store],
                               run(runs, "p2-start"), init=phase1.last)
     assert start.config.dynamics == phase1.module.config.dynamics  # phase 1's network wins over the profile's
     assert start.config.phase == 2 and start.config.unroll_steps == 8
@@ -133,10 +137,10 @@ def test_phase_two_starts_from_phase_one_weights(phase1, store, runs, monkeypatc
 def test_a_run_started_from_a_checkpoint_holds_out_its_episodes_whatever_its_seed(phase1, store, runs, monkeypatch):
     built = []
     monkeypatch.setattr(wmt, "fit_module", lambda module, data, *args, **kw: built.append(data) or module)
-    train_world_model(tiny(2), [store], run(runs, "p2-seed", seed=7), init=phase1.last)
-    first = EpisodeDataModule(world_model_data_config(phase1.module.config, [store], run(runs, "x")))
+    train(WorldModelModule, tiny(2), [store], run(runs, "p2-seed", seed=7), init=phase1.last)
+    first = EpisodeDataModule(WorldModelModule.data_config(phase1.module.config, (str(store),), run(runs, "x"), (0, 0.25)))
     assert list(built[0].val_episodes) == list(first.val_episodes)
-    other = EpisodeDataModule(world_model_data_config(phase1.module.config, [store], run(runs, "x", seed=7)))
+    other = EpisodeDataModule(WorldModelModule.data_config(phase1.module.config, (str(store),), run(runs, "x"), (7, 0.25)))
     assert list(other.val_episodes) != list(first.val_episodes)  # seed 7 alone would hold out others
     record = json.loads((runs / "p2-seed" / "run.json").read_text())
     assert (record["seed"], record["split_seed"]) == (7, 0)
@@ -150,7 +154,7 @@ def test_phase_two_lowers_the_unrolled_loss(phase1, phase2, store):
     assert ckpt["gpc"] == {"format": 1, "kind": "world_model", "task": "pusht", "obs": "state", "phase": 2}
     assert ckpt["hyper_parameters"]["data"]["init"] == str(phase1.last)
     record = json.loads((phase2.run_dir / "run.json").read_text())
-    assert record["kind"] == "world_model" and record["world_model"]["phase"] == 2
+    assert record["kind"] == "world_model" and record["config"]["phase"] == 2
 
 
 def test_batched_rollouts_equal_one_by_one_and_broadcast(phase2, store):
@@ -177,7 +181,7 @@ def test_rollout_and_reward_are_differentiable_in_the_actions(phase2, store):
     model = phase2.module.eval()
     history, actions = _history(store)
     actions = actions.expand(4, -1, -1).clone().requires_grad_(True)
-    score = RegistrationReward(TEE, GOAL)(model.rollout(history, actions))
+    score = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)(model.rollout(history, actions))
     score.sum().backward()
     assert score.shape == (4,) and torch.isfinite(actions.grad).all()
     assert actions.grad.abs().sum() > 0 and actions.grad[:, 0].abs().sum() > 0  # the first action matters
@@ -197,7 +201,7 @@ def test_angles_near_zero_and_two_pi_predict_the_same(phase1):
 
 
 def test_eval_beats_the_nothing_moves_baseline(phase2, store):
-    report = evaluate_rollouts(phase2.module, [store], vertices=TEE)
+    report = evaluate_rollouts(phase2.module, [store], layout=LAYOUT)
     first, last = report["steps"][0], report["steps"][-1]
     assert report["split"] == "val" and report["episodes"] == 2 and len(report["steps"]) == 8
     assert first["model"]["agent_px"] < 0.6 * first["baseline"]["agent_px"]  # about 4 px against 9
@@ -210,18 +214,18 @@ def test_wrong_kind_checkpoint_and_nan_data_are_one_line_errors(phase1, store, r
     ckpt["gpc"] = checkpoint_meta("policy", "pusht", obs="state")
     torch.save(ckpt, tmp_path / "policy.ckpt")
     for call in (lambda: WorldModelModule.load_from_checkpoint(tmp_path / "policy.ckpt"),
-                 lambda: train_world_model(tiny(2), [store], run(tmp_path, "p2"), init=tmp_path / "policy.ckpt")):
+                 lambda: train(WorldModelModule, tiny(2), [store], run(tmp_path, "p2"), init=tmp_path / "policy.ckpt")):
         with pytest.raises(DataError, match="is a 'policy' checkpoint, expected a 'world_model' checkpoint") as err:
             call()
         assert "\n" not in str(err.value)
     bad = make_store(tmp_path / "nan.zarr", episodes=3, nan=True)
     with pytest.raises(DataError, match=r"nan.zarr: data/state holds NaN or inf") as err:
-        train_world_model(tiny(1), [bad], run(tmp_path, "nan"))
+        train(WorldModelModule, tiny(1), [bad], run(tmp_path, "nan"))
     assert "\n" not in str(err.value)
     with pytest.raises(DataError, match="phase 2 starts from phase-1 weights"):
-        train_world_model(tiny(2), [store], run(tmp_path, "noinit"))
+        train(WorldModelModule, tiny(2), [store], run(tmp_path, "noinit"))
     with pytest.raises(DataError, match="is phase 1, not phase 2"):
-        train_world_model(tiny(2), [store], run(runs, "wm-phase1", resume=True))
+        train(WorldModelModule, tiny(2), [store], run(runs, "wm-phase1", resume=True))
 
 
 def test_a_store_of_another_state_size_is_refused_in_one_line(phase1, store, tmp_path):
@@ -231,7 +235,7 @@ def test_a_store_of_another_state_size_is_refused_in_one_line(phase1, store, tmp
         ep = src.episode(e, ["state", "action"])
         out.append_episode({"state": np.concatenate([ep["state"], ep["state"][:, :1]], axis=1), "action": ep["action"]}, seed=e)
     with pytest.raises(DataError, match=r"wide.zarr: data/state rows are \(6,\), the world model needs \(5,\)") as err:
-        train_world_model(tiny(2), [wide], run(tmp_path, "p2"), init=phase1.last)
+        train(WorldModelModule, tiny(2), [wide], run(tmp_path, "p2"), init=phase1.last)
     assert "\n" not in str(err.value) and not (tmp_path / "p2" / "checkpoints").exists()
 
 
@@ -248,23 +252,23 @@ def test_rollout_refuses_non_finite_inputs(phase1, where, bad):
 
 
 def test_non_finite_loss_stops_training(store, tmp_path, monkeypatch):
-    real, calls = wmt.WorldModelModule._loss, {"n": 0}
+    real, calls = wm_module.WorldModelModule.loss, {"n": 0}
 
     def going_nan(self, batch):
         loss, logs = real(self, batch)
         calls["n"] += self.training
         return (loss * float("nan") if self.training and calls["n"] > 2 else loss), logs
 
-    monkeypatch.setattr(wmt.WorldModelModule, "_loss", going_nan)
+    monkeypatch.setattr(wm_module.WorldModelModule, "loss", going_nan)
     with pytest.raises(TrainingDiverged, match="non-finite at step 2"):
-        train_world_model(tiny(1), [store], run(tmp_path, "nan", max_steps=10))
+        train(WorldModelModule, tiny(1), [store], run(tmp_path, "nan", max_steps=10))
     ckpt = torch.load(tmp_path / "nan" / "checkpoints" / "last.ckpt", weights_only=True)
     assert ckpt["global_step"] <= 3 and all(torch.isfinite(v).all() for v in ckpt["state_dict"].values())
 
 
 def test_resume_continues_phase_one(store, tmp_path):
-    first = train_world_model(tiny(1), [store], run(tmp_path, "r", max_steps=3))
-    second = train_world_model(tiny(1), [store], run(tmp_path, "r", max_steps=6, resume=True))
+    first = train(WorldModelModule, tiny(1), [store], run(tmp_path, "r", max_steps=3))
+    second = train(WorldModelModule, tiny(1), [store], run(tmp_path, "r", max_steps=6, resume=True))
     assert (first.global_step, second.global_step) == (3, 6)
     assert torch.load(second.last, weights_only=True)["global_step"] == 6
 
@@ -292,12 +296,12 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path, phase1):
     report = json.loads((tmp_path / "wm-phase2" / "eval" / "world_model_eval.json").read_text())
     assert report["episodes"] == 1 and report["checkpoint"] == str(last) and len(report["steps"]) == 8
     assert "| 8 |" in ev.output and (tmp_path / "wm-phase2" / "eval" / "world_model_eval.md").is_file()
-    image_only = cli.invoke(world_model_app, ["eval", str(last), "--dataset", str(store), "--sampler-steps", "5"])
-    assert image_only.exit_code == 2 and "--sampler-steps" in image_only.output and "image world models only" in image_only.output
+    image_only = cli.invoke(app, ["eval", "world-model", str(last), "--dataset", str(store), "--sampler-steps", "5"])
+    assert image_only.exit_code == 2 and "--sampler-steps applies to image world models only" in image_only.output
 
 
 def test_phase_one_trains_on_the_human_data(human_data, tmp_path):
-    result = train_world_model(tiny(1), [human_data], run(tmp_path, "human", max_steps=2, batch_size=16, val_ratio=0.05))
+    result = train(WorldModelModule, tiny(1), [human_data], run(tmp_path, "human", max_steps=2, batch_size=16, val_ratio=0.05))
     assert result.global_step == 2
     stats = result.module.dynamics.normalizer
     assert set(stats.keys()) == {"state", "action", "state_delta"}
@@ -307,10 +311,10 @@ def test_phase_one_trains_on_the_human_data(human_data, tmp_path):
 def test_object_frame_sees_a_moved_and_turned_scene_the_same():
     """The block-frame features do not change when the whole scene is shifted and rotated, and the
     predicted block displacement turns with the scene (the only frame-dependent part)."""
-    from models.world_model import StateDynamics, rotate
-    from models.world_model_config import DynamicsConfig
+    from gpc.models.world_models.state import StateDynamics, rotate
+    from gpc.models.world_models.config import DynamicsConfig
 
-    config = DynamicsConfig(width=16, depth=1, object_frame=(2, 3, 4))
+    config = DynamicsConfig.for_layout(LAYOUT, "object", width=16, depth=1)
     model = StateDynamics(config)
     model.normalizer.add("state", np.zeros(5), np.full(5, 512.0))
     model.normalizer.add("action", np.zeros(2), np.full(2, 512.0))

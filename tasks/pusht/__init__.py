@@ -1,50 +1,65 @@
 """Push-T: Diffusion Policy's planar pushing task (simulator, renderer, expert, exploration).
 
-The functions below are the task interface that collection and data inspection use.
+``TASK`` is all the rest of gpc knows of it (``gpc.tasks.base.Task``); every constant lives in
+this package.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from tasks.pusht import geometry
-from tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
-from tasks.pusht.render import draw_futures, draw_plan, draw_state as render_state
-from tasks.pusht.record import EpisodeStats, RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
-from tasks.pusht.sim import CONTROL_HZ, K_P, K_V, SIM_HZ
-from tasks.pusht.sim_model import SIM_KEY, SimulatorModel
+from gpc.datasets.layout import ActionBox, FrameLayout, PoseTarget, StateLayout, TaskLayout
+from gpc.tasks.base import EpisodeStats, Task
+from gpc.tasks.pusht import geometry, render
+from gpc.tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
+from gpc.tasks.pusht.record import RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
+from gpc.tasks.pusht.sim import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
+from gpc.tasks.pusht.sim_model import SIM_KEY, SimulatorModel
 
 ENV_ID = "gpc/PushT-v0"
 
 if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="tasks.pusht.env:PushTEnv", max_episode_steps=MAX_EPISODE_STEPS)
+    gym.register(id=ENV_ID, entry_point="gpc.tasks.pusht.env:PushTEnv", max_episode_steps=MAX_EPISODE_STEPS)
+
+# State [agent x, y, block x, y, block angle]; actions are agent target positions in the 512 px workspace.
+LAYOUT = TaskLayout(
+    name="pusht",
+    state=StateLayout(dim=5, object_pose=(2, 3, 4), agent_xy=(0, 1), angle_dims=(4,), action_targets=(0, 1),
+                      object_size=50.0),  # about the T's size in px
+    action=ActionBox(dim=2, low=0.0, high=float(geometry.WORKSPACE)),
+    target=PoseTarget(vertices=tuple((float(x), float(y)) for x, y in geometry.TEE_BOXES.reshape(-1, 2)),
+                      goal=tuple(float(g) for g in geometry.GOAL_POSE),
+                      centroid=(float(geometry.TEE_CENTROID[0]), float(geometry.TEE_CENTROID[1]))),
+    # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2.
+    frame=FrameLayout(extent=(0.0, float(geometry.WORKSPACE)), marker_size=AGENT_RADIUS,
+                      object_colours=(render.BLOCK_FILL, render.BLOCK_EDGE),
+                      agent_colours=(render.AGENT_FILL, render.AGENT_EDGE), angle_offset=-math.pi / 2),
+)
 
 
 def scripted_policy(kind: str) -> ScriptedPolicy:
     """The privileged controller behind ``gpc collect`` (``expert``) and ``--explore``."""
     if kind == "expert":
-        from tasks.pusht.expert import PushTExpert
+        from gpc.tasks.pusht.expert import PushTExpert
 
         return PushTExpert()
     if kind == "explore":
-        from tasks.pusht.explore import ExploreConfig, ExplorePolicy
+        from gpc.tasks.pusht.explore import ExploreConfig, ExplorePolicy
 
         return ExplorePolicy(ExploreConfig())
     raise ValueError(f"collector {kind!r}: use expert or explore")
 
 
-def collector_params(kind: str, max_steps: int) -> dict:
+def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
     policy = scripted_policy(kind)
     config = getattr(policy, "config", None)
-    return {
-        "policy": type(policy).__name__,
-        "config": asdict(config) if config is not None else {},
-        "stop_on_success": kind == "expert",
-        "max_steps": max_steps,
-    }
+    return {"policy": type(policy).__name__, "config": asdict(config) if config is not None else {},
+            "stop_on_success": kind == "expert", "max_steps": max_steps}
 
 
 def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
@@ -52,7 +67,7 @@ def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tup
     return record_episode(scripted_policy(kind), seed, config)
 
 
-def env_params(goal: str, max_steps: int) -> dict:
+def env_params(goal: str, max_steps: int) -> dict[str, Any]:
     return {
         "id": ENV_ID, "goal": goal, "sim_hz": SIM_HZ, "control_hz": CONTROL_HZ, "k_p": K_P, "k_v": K_V,
         "goal_pose": geometry.GOAL_POSE.tolist() if goal == "fixed" else "per-seed", "render_size": 96,
@@ -70,19 +85,41 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
     return len(geometry.pose_cells(states, bins)) / float(np.prod(bins))
 
 
-ACTION_LOW, ACTION_HIGH = 0.0, float(geometry.WORKSPACE)  # the action box (px targets)
-REWARD_VERTICES = geometry.TEE_BOXES.reshape(-1, 2)  # the T's corners: what the registration reward compares
-DEFAULT_GOAL = geometry.GOAL_POSE
-TASK_DESCRIPTION = "push the grey T-shaped block so that it covers the green T-shaped goal exactly"
+def render_state(state: np.ndarray, goal: np.ndarray | None = None, size: int = 96) -> np.ndarray:
+    """A (predicted) state drawn as the camera would show it, the goal drawn too."""
+    return render.draw_state(state, geometry.GOAL_POSE if goal is None else np.asarray(goal, dtype=np.float64), size)
 
 
-def render_future(state: np.ndarray, goal: np.ndarray | None = None, size: int = 96) -> np.ndarray:
-    """A predicted state drawn as the camera would show it (the goal drawn too), for a VLM to judge."""
-    return render_state(state, DEFAULT_GOAL if goal is None else np.asarray(goal, dtype=np.float64), size)
+def make_env(goal: str) -> PushTEnv:
+    return PushTEnv(obs_type="state", goal=goal)
 
 
-__all__ = [
-    "ACTION_HIGH", "ACTION_LOW", "DEFAULT_GOAL", "ENV_ID", "GOAL_MODES", "REWARD_VERTICES", "SIM_KEY", "SimulatorModel", "TASK_DESCRIPTION", "EpisodeStats", "PushTEnv", "RecordConfig", "collector_params", "draw_futures", "draw_plan",
-    "env_params", "episode_scores", "observe", "pose_coverage", "record", "record_keys", "render_future", "render_state",
-    "scripted_policy",
-]
+def check_replay(path: Any, episodes: int = 0, frame_stride: int = 10) -> dict[str, Any]:
+    from gpc.tasks.pusht.fidelity import check_store
+
+    return check_store(path, episodes, frame_stride)
+
+
+TASK = Task(
+    layout=LAYOUT,
+    description="push the grey T-shaped block so that it covers the green T-shaped goal exactly",
+    goal_modes=GOAL_MODES,
+    make_env=make_env,
+    observe=observe,  # type: ignore[arg-type]
+    record_keys=record_keys,
+    record=record,
+    collector_params=collector_params,
+    env_params=env_params,
+    simulator=SimulatorModel,
+    sim_key=SIM_KEY,
+    render_state=render_state,
+    episode_scores=episode_scores,
+    max_episode_steps=MAX_EPISODE_STEPS,
+    info_metrics=("coverage",),
+    draw_plan=render.draw_plan,
+    draw_futures=render.draw_futures,
+    pose_coverage=pose_coverage,
+    check_replay=check_replay,
+)
+
+__all__ = ["ENV_ID", "LAYOUT", "TASK", "PushTEnv", "SimulatorModel", "geometry", "render"]

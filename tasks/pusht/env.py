@@ -17,9 +17,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tasks.pusht import geometry
-from tasks.pusht.render import draw_scene
-from tasks.pusht.sim import PushTSim
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.render import draw_scene
+from gpc.tasks.pusht.sim import PushTSim
 
 OBS_TYPES = ("state", "keypoints", "pixels")
 GOAL_MODES = ("fixed", "random")

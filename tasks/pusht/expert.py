@@ -18,8 +18,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from tasks.pusht import geometry
-from tasks.pusht.sim import AGENT_RADIUS, PushTSim, SimSnapshot
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.sim import AGENT_RADIUS, PushTSim, SimSnapshot
 
 R = AGENT_RADIUS
 COG = np.array([0.0, 45.0])  # the block's centre of gravity in block coordinates
@@ -362,7 +362,7 @@ class PushTExpert:
 def evaluate_expert(seeds: Sequence[int], goal: str = "fixed", config: ExpertConfig = ExpertConfig(),
                     max_steps: int = 300, on_episode: Callable[[dict], None] | None = None) -> dict:
     """Closed-loop score of the expert: max reward per episode, stopping at success."""
-    from tasks.pusht.record import RecordConfig, record_episode
+    from gpc.tasks.pusht.record import RecordConfig, record_episode
 
     record = RecordConfig(max_steps=max_steps, stop_on_success=True, images=False, goal=goal)
     res: dict = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}

@@ -16,12 +16,12 @@ from typing import Sequence
 
 import numpy as np
 
-from tasks.pusht import geometry
-from tasks.pusht.expert import (
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.expert import (
     COG, HI, LO, R, PushTExpert, approach_paths, clearance, escape, follow, in_workspace, rotate,
     sample_contacts, to_block,
 )
-from tasks.pusht.sim import PushTSim
+from gpc.tasks.pusht.sim import PushTSim
 
 MODES = ("perturbed", "pushes", "mixed")
 _BOX_LO, _BOX_HI = geometry.TEE_BOXES.min(axis=1), geometry.TEE_BOXES.max(axis=1)  # bar, stem
@@ -187,7 +187,7 @@ class ExplorePolicy:
 
 
 def _run(policy, seeds: Sequence[int], goal: str, max_steps: int, stop_on_success: bool) -> dict:
-    from tasks.pusht.record import RecordConfig, record_episode
+    from gpc.tasks.pusht.record import RecordConfig, record_episode
 
     record = RecordConfig(max_steps=max_steps, stop_on_success=stop_on_success, images=False, goal=goal)
     fractions, steps, seconds, cells = [], [], [], set()

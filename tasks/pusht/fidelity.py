@@ -8,11 +8,13 @@ recorded frames. These are the acceptance figures for using Diffusion Policy's d
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from tasks.pusht.render import draw_state
-from tasks.pusht.sim import PushTSim
+from gpc.datasets.store import EpisodeStore
+from gpc.tasks.pusht.render import draw_state
+from gpc.tasks.pusht.sim import PushTSim
 
 
 @dataclass(frozen=True)
@@ -101,3 +103,27 @@ def restore_divergence(states: np.ndarray, actions: np.ndarray, episode_ends: np
             sim.step(actions[k])
         gaps.append(float(np.abs(sim.block_pose()[:2] - first[:2]).max()))
     return np.array(gaps)
+
+
+def check_store(path: str | Path, episodes: int = 0, frame_stride: int = 10) -> dict:
+    """Replay, restore and render figures of a recorded Push-T store (``gpc check-sim``)."""
+    store = EpisodeStore.open(path)
+    for key in ("state", "action"):
+        store.array(key)
+    n_eps = store.n_episodes if episodes == 0 else min(episodes, store.n_episodes)
+    stop = int(store.episode_ends[n_eps - 1])
+    states, actions = store.read("state", 0, stop), store.read("action", 0, stop)
+    store.check_finite(["state", "action"])
+    rep = replay(states, actions, store.episode_ends[:n_eps])
+    gaps = restore_divergence(states, actions, store.episode_ends[:n_eps])
+    out = {"data": str(path), "replay": rep.summary(),
+           "restore": {"samples": int(gaps.size), "horizon": 16, "exact_fraction": float(np.mean(gaps == 0)),
+                       "gap_px_p50": float(np.median(gaps)), "gap_px_p95": float(np.percentile(gaps, 95)),
+                       "gap_px_max": float(gaps.max())}}
+    if "img" in store.keys:
+        idx = np.arange(0, stop, frame_stride)
+        imgs = np.asarray(store.array("img").oindex[idx])  # each chunk decompressed once
+        mad = render_errors(states[idx], imgs)
+        out["render"] = {"frames": int(idx.size), "mad_mean": float(mad.mean()),
+                         "mad_p99": float(np.percentile(mad, 99)), "mad_max": float(mad.max())}
+    return out

@@ -13,10 +13,11 @@ from typing import Protocol
 
 import numpy as np
 
-from tasks.pusht import geometry
-from tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
-from tasks.pusht.sim import PushTSim
-from tasks.pusht.sim_model import SIM_KEY, sim_vector
+from gpc.tasks.base import EpisodeStats
+from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
+from gpc.tasks.pusht.sim import PushTSim
+from gpc.tasks.pusht.sim_model import SIM_KEY, sim_vector
 
 
 class ScriptedPolicy(Protocol):
@@ -38,14 +39,6 @@ class RecordConfig:
     def __post_init__(self) -> None:
         if self.max_steps < 1:
             raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
-
-@dataclass(frozen=True)
-class EpisodeStats:
-    seed: int
-    steps: int
-    score: float  # max reward over the episode (Diffusion Policy's score)
-    success: bool
-    contact_fraction: float
 
 def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
     """One step's observation in the data layout (``state``, ``keypoint``, ``img``; with a random

@@ -10,8 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, tee_vertices, to_world
-from tasks.pusht.sim import AGENT_RADIUS, WALL_RADIUS, WALLS
+from gpc.tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, tee_vertices, to_world
+from gpc.tasks.pusht.sim import AGENT_RADIUS, WALL_RADIUS, WALLS
 
 # RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255).
 GOAL = (144, 238, 144)  # LightGreen

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from tasks.pusht.geometry import TEE_BOXES
+from gpc.tasks.pusht.geometry import TEE_BOXES
 
 SIM_HZ = 100
 CONTROL_HZ = 10

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tasks.pusht.sim import PushTSim, SimSnapshot
+from gpc.tasks.pusht.sim import PushTSim, SimSnapshot
 
 SIM_KEY = "sim"
 SIM_DIM = 10  # agent x, y, vx, vy; block x, y, angle, vx, vy, omega

@@ -1,0 +1,217 @@
+"""Paired comparisons of closed-loop results: each planner against BC on the same seeds.
+
+Every planner draws its policy proposals from the same per-episode random stream as BC,
+so the per-seed difference isolates planning. The table reports the mean difference with
+a paired 95% confidence interval (Student t over seeds) and, given the ground-truth
+simulator's result, the share of the BC-to-ceiling gap a planner closes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gpc.datasets.errors import DataError
+
+# The paper's tables (100 seeds; vision: IoU score), keyed by our controller labels.
+PAPER = {
+    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882},
+    "pusht-state": {
+        "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
+        "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,
+    },
+}
+
+
+def t_quantile(p: float, dof: int) -> float:
+    """Student t quantile by a Cornish-Fisher expansion of the normal one (error < 1e-3 for dof >= 5)."""
+    z = _normal_quantile(p)
+    v = float(dof)
+    return (z + (z**3 + z) / (4 * v) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * v**2)
+            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * v**3))
+
+
+def _normal_quantile(p: float) -> float:
+    lo, hi = -10.0, 10.0
+    for _ in range(100):  # bisection on the normal CDF
+        mid = (lo + hi) / 2
+        if 0.5 * (1 + math.erf(mid / math.sqrt(2))) < p:
+            lo = mid
+        else:
+            hi = mid
+    return (lo + hi) / 2
+
+
+def paired_interval(diffs: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean of per-seed differences and its two-sided ``level`` confidence interval."""
+    n = len(diffs)
+    mean = float(np.mean(diffs))
+    if n < 2:
+        return mean, float("nan"), float("nan")
+    half = t_quantile(0.5 + level / 2, n - 1) * float(np.std(diffs, ddof=1)) / math.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+def load_run(path: Path) -> dict[str, Any]:
+    """A `gpc eval` output directory (or its first sampling seed's) as summary + per-seed rows.
+
+    ``A+B``: one controller evaluated on two seed ranges (two ``gpc eval`` runs) counts as one
+    run over the union of their seeds, so more seeds can be added without re-running the first;
+    its latencies and time shares are the parts' figures weighted by their seeds.
+    """
+    if not Path(path).exists() and "+" in str(path):
+        return _joined([load_run(Path(p)) for p in str(path).split("+")], str(path))
+    path = Path(path)
+    for d in (path, path / "sampling-seed-0"):
+        if (d / "episodes.json").is_file() and (d / "summary.json").is_file():
+            summary = json.loads((d / "summary.json").read_text())
+            rows = {r["seed"]: r for r in json.loads((d / "episodes.json").read_text())}
+            label = summary.get("controller", {}).get("controller", d.name)
+            return {"path": str(path), "label": label, "summary": summary, "rows": rows}
+    raise DataError(f"{path}: no gpc eval results here (episodes.json, summary.json); run `gpc eval ... --out {path}` first")
+
+
+def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
+    first = parts[0]
+    rows: dict[int, Any] = {}
+    for part in parts:
+        if part["summary"].get("controller") != first["summary"].get("controller"):
+            raise DataError(f"{path}: {part['path']} ran another controller than {first['path']}; join runs of one controller")
+        twice = sorted(set(rows) & set(part["rows"]))
+        if twice:
+            raise DataError(f"{path}: seed(s) {twice[:5]} appear in more than one part")
+        rows.update(part["rows"])
+    weights = [len(p["rows"]) / len(rows) for p in parts]
+
+    def mix(get: Any) -> float:
+        return float(sum(w * get(p["summary"]) for w, p in zip(weights, parts)))
+
+    shares = {k for p in parts for k in p["summary"].get("time_share", {})}
+    summary = {**first["summary"],
+               "decision_latency_s": {"p50": mix(lambda s: s["decision_latency_s"]["p50"])},
+               "call_latency_s": {"p50": mix(lambda s: s["call_latency_s"]["p50"])},
+               "time_share": {k: mix(lambda s, k=k: s.get("time_share", {}).get(k, 0.0)) for k in sorted(shares)}}
+    return {"path": path, "label": first["label"], "summary": summary, "rows": rows}
+
+
+def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) -> dict[str, Any]:
+    """One row per run: score, success, paired differences to BC, gap closed, seconds per decision."""
+    base = load_run(baseline)
+    seeds = sorted(base["rows"])
+    top = load_run(ceiling) if ceiling else None
+    table = []
+    for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)]:
+        missing = [s for s in seeds if s not in run["rows"]]
+        if missing:
+            raise DataError(f"{run['path']}: lacks seed(s) {missing[:5]} of the baseline; compare runs on the same seeds")
+        score = np.array([run["rows"][s]["score"] for s in seeds])
+        success = np.array([float(run["rows"][s]["success"]) for s in seeds])
+        b_score = np.array([base["rows"][s]["score"] for s in seeds])
+        b_success = np.array([float(base["rows"][s]["success"]) for s in seeds])
+        d, lo, hi = paired_interval(score - b_score)
+        ds, slo, shi = paired_interval(success - b_success)
+        row = {
+            "label": run["label"], "path": run["path"], "seeds": len(seeds),
+            "score": float(score.mean()), "success": float(success.mean()),
+            "score_diff": d, "score_ci": [lo, hi], "success_diff": ds, "success_ci": [slo, shi],
+            "s_per_decision": run["summary"]["decision_latency_s"]["p50"],
+            "s_per_call": run["summary"]["call_latency_s"]["p50"],
+            "time_share": run["summary"].get("time_share", {}),
+        }
+        if top is not None:
+            t_score = float(np.mean([top["rows"][s]["score"] for s in seeds]))
+            t_success = float(np.mean([float(top["rows"][s]["success"]) for s in seeds]))
+            gap, gap_s = t_score - b_score.mean(), t_success - b_success.mean()
+            row["gap_closed_score"] = float(d / gap) if gap > 0 else float("nan")
+            row["gap_closed_success"] = float(ds / gap_s) if gap_s > 0 else float("nan")
+        table.append(row)
+    _tell_apart(table)
+    return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "rows": table}
+
+
+def _tell_apart(rows: list[dict[str, Any]]) -> None:
+    """Two runs of one controller (e.g. with two world models) would share a label: name each by its results
+    folder, or by its own folder's name where they share the results folder."""
+    labels = [r["label"] for r in rows]
+    for label in set(labels):
+        group = [r for r in rows[1:] if r["label"] == label]  # the baseline keeps its label (the paper's column keys on it)
+        if labels.count(label) < 2 or not group:
+            continue
+        paths = [Path(r["path"].split("+")[0]) for r in group]
+        names = [p.parent.name for p in paths]
+        if len(set(names)) < len(names):
+            names = [p.name for p in paths]
+        for r, name in zip(group, names):
+            r["label"] = f"{label} ({name})"
+
+
+def _pct(x: float) -> str:
+    return "n/a" if x != x else f"{100 * x:.0f}%"
+
+
+def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | None = None) -> str:
+    """Markdown (and JSON beside it) of a ``compare_runs`` table; returns the Markdown."""
+    if paper is not None and paper not in PAPER:
+        raise ValueError(f"--paper {paper!r}: known tables are {', '.join(PAPER)}")
+    figures = PAPER.get(paper, {}) if paper else {}
+    head = "| controller | " + ("paper | " if figures else "") + (
+        "score | success | score - BC [95% CI] | success - BC [95% CI] | gap closed (score / success) "
+        "| s/decision | time share |")
+    lines = [f"# {title}", "", f"Paired over {table['rows'][0]['seeds']} seeds; baseline {table['baseline']}"
+             + (f"; ceiling {table['ceiling']}" if table["ceiling"] else "") + ".", "", head,
+             "|" + "---|" * (head.count("|") - 1)]
+    for r in table["rows"]:
+        share = ", ".join(f"{k} {v:.0%}" for k, v in sorted(r["time_share"].items(), key=lambda kv: -kv[1]))
+        gap = f"{_pct(r.get('gap_closed_score', float('nan')))} / {_pct(r.get('gap_closed_success', float('nan')))}"
+        lines.append(
+            f"| {r['label']} | " + (f"{figures.get(r['label'], float('nan')):.3f} | ".replace("nan", "-") if figures else "")
+            + f"{r['score']:.3f} | {r['success']:.2f} | {r['score_diff']:+.3f} [{r['score_ci'][0]:+.3f}, {r['score_ci'][1]:+.3f}] "
+            f"| {r['success_diff']:+.2f} [{r['success_ci'][0]:+.2f}, {r['success_ci'][1]:+.2f}] | {gap} "
+            f"| {r['s_per_decision']:.3f} | {share} |"
+        )
+    md = "\n".join(lines) + "\n\ns/decision: median seconds per decision per episode (a lockstep call divided by its episodes).\n"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(md)
+    out.with_suffix(".json").write_text(json.dumps(table, indent=2))
+    return md
+
+
+def plot_comparison(table: dict[str, Any], path: Path, size: tuple[int, int] = (900, 560)) -> Path:
+    """PNG: mean score against seconds per decision (log axis), one labelled point per controller."""
+    import cv2
+
+    rows = [r for r in table["rows"] if r["s_per_decision"] > 0]
+    if not rows:
+        raise DataError("no controller with a positive decision time to plot")
+    w, h = size
+    left, right, top, bottom = 70, 30, 30, 60
+    img = np.full((h, w, 3), 255, np.uint8)
+    xs = np.log10([r["s_per_decision"] for r in rows])
+    x_lo, x_hi = float(np.floor(xs.min())), float(np.ceil(xs.max() + 1e-9))
+    x_hi = max(x_hi, x_lo + 1)
+    y_lo = min(0.0, float(np.floor(min(r["score"] for r in rows) * 10) / 10))
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return (int(left + (x - x_lo) / (x_hi - x_lo) * (w - left - right)),
+                int(h - bottom - (y - y_lo) / (1.0 - y_lo) * (h - top - bottom)))
+
+    black, grey, font = (0, 0, 0), (200, 200, 200), cv2.FONT_HERSHEY_SIMPLEX
+    for e in range(int(x_lo), int(x_hi) + 1):
+        cv2.line(img, px(e, y_lo), px(e, 1.0), grey, 1)
+        cv2.putText(img, f"{10.0 ** e:g} s", (px(e, y_lo)[0] - 20, h - bottom + 22), font, 0.45, black, 1, cv2.LINE_AA)
+    for y in np.arange(y_lo, 1.0001, 0.1):
+        cv2.line(img, px(x_lo, y), px(x_hi, y), grey, 1)
+        cv2.putText(img, f"{y:.1f}", (20, px(x_lo, y)[1] + 5), font, 0.45, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "seconds per decision (per episode, log scale)", (w // 2 - 190, h - 12), font, 0.5, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "mean score", (5, 18), font, 0.5, black, 1, cv2.LINE_AA)
+    for r, x in zip(rows, xs):
+        p = px(float(x), r["score"])
+        cv2.circle(img, p, 5, (200, 40, 40) if r["label"] == "bc" else (40, 90, 200), -1, cv2.LINE_AA)
+        cv2.putText(img, r["label"], (p[0] + 7, p[1] - 6), font, 0.42, black, 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    return path

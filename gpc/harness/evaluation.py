@@ -1,0 +1,272 @@
+"""The closed-loop harness: any controller, many seeds, Diffusion Policy's scoring.
+
+Episodes are split into fixed groups of ``batch`` seeds; a group's episodes step in
+lockstep and the controller is called once per decision for the whole group (one batched
+policy call, not one per episode). Groups are the same whatever ``--workers`` is, each
+episode draws its randomness from its own generator (seeded by the sampling seed and the
+env seed), and every process uses the same number of torch threads, so results are
+identical for any worker count. Finished episodes stay in their group's batch with their
+last observation, which keeps each batched call identical from run to run.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import statistics
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+
+from gpc.models.planning.protocols import Controller, Plan
+from gpc.tasks import get_task
+from gpc.tasks.base import Task
+
+IMAGE_KEY = "img"
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Which episodes to run and how."""
+
+    seeds: tuple[int, ...]
+    task: str  # a registered task's name (gpc.tasks.get_task)
+    goal: str = "fixed"
+    max_steps: int = 300
+    batch: int = 25  # episodes per lockstep group (one controller call per decision per group)
+    workers: int = 1  # processes; results do not depend on it
+    threads: int = 1  # torch threads per process; results do depend on it (float reduction order)
+    sampling_seed: int = 0  # with the env seed, seeds each episode's random stream
+    video_dir: str | None = None
+    videos: int = 0  # MP4s for the first N seeds (with the planned chunk drawn)
+    video_size: int = 384
+
+    def __post_init__(self) -> None:
+        get_task(self.task).check_goal(self.goal)
+        if not self.seeds:
+            raise ValueError("--seeds: no seeds given")
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError("--seeds: a seed is listed twice")
+        for name in ("max_steps", "batch", "workers", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
+        if self.videos and not self.video_dir:
+            raise ValueError("--videos needs an output directory")
+
+    def groups(self) -> list[tuple[int, ...]]:
+        s = self.seeds
+        return [s[i : i + self.batch] for i in range(0, len(s), self.batch)]
+
+
+def episode_generator(sampling_seed: int, env_seed: int) -> torch.Generator:
+    """The random stream of one episode: the same for every planner and batch layout (paired runs)."""
+    state = np.random.SeedSequence([sampling_seed, env_seed]).generate_state(2, dtype=np.uint32)
+    return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+
+
+def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) -> dict[str, Any]:
+    """Run one lockstep group to the end: per-seed results and the group's call timings."""
+    task = get_task(config.task)
+    images, sim = IMAGE_KEY in controller.obs_keys, task.sim_key in controller.obs_keys
+    envs = [task.make_env(config.goal) for _ in seeds]
+    for env, seed in zip(envs, seeds):
+        env.reset(seed=seed)
+    gens = [episode_generator(config.sampling_seed, s) for s in seeds]
+    if hasattr(controller, "start"):
+        controller.start(seeds)
+    stats_before = controller.stats() if hasattr(controller, "stats") else {}
+    hist = [deque([task.observe(env, images, sim)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
+    rows = [{"seed": int(s), "score": 0.0, "success": False, "steps": 0, **{f"{m}_max": 0.0 for m in task.info_metrics}}
+            for s in seeds]
+    done = [False] * len(seeds)
+    latencies: list[float] = []
+    parts: dict[str, float] = {}
+    films = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
+    while not all(done):
+        obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in hist[0][0]}
+        t0 = time.perf_counter()
+        plan = controller.plan(obs, gens)
+        latencies.append(time.perf_counter() - t0)
+        for name, sec in plan.seconds.items():
+            parts[name] = parts.get(name, 0.0) + sec
+        for i, env in enumerate(envs):
+            if done[i]:
+                continue
+            for j, action in enumerate(plan.actions[i]):
+                if i in films:
+                    films[i].extend(_film_frames(task, env, plan, i, j, config.video_size))
+                _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
+                row = rows[i]
+                row["steps"] += 1
+                row["score"] = max(row["score"], float(reward))
+                for m in task.info_metrics:
+                    row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
+                row["success"] = row["success"] or bool(terminated)
+                hist[i].append(task.observe(env, images, sim))  # every step: the history is consecutive steps, as in training
+                if terminated or row["steps"] >= config.max_steps:
+                    done[i] = True
+                    break
+            rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
+    for i, film in films.items():
+        from gpc.harness.video import write_mp4
+
+        write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
+    stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
+    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats}
+
+
+def _film_frames(task: Task, env: Any, plan: Plan, i: int, j: int, size: int) -> list[np.ndarray]:
+    """Video frames before action ``j`` of episode ``i``: the scene with the planned chunk drawn, and at the
+    decision (``j = 0``) every candidate's predicted future held for half a second, where the task draws them."""
+    frame = env.frame(size)
+    out = []
+    if plan.futures is not None and j == 0 and task.draw_futures is not None and plan.scores is not None:
+        assert plan.chosen is not None
+        out += [task.draw_futures(frame.copy(), plan.futures[i], plan.scores[i], int(plan.chosen[i]))] * 5
+    out.append(task.draw_plan(frame, plan.chunk[i][j:], len(plan.actions[i]) - j) if task.draw_plan is not None else frame)
+    return out
+
+
+def _counts(after: dict[str, Any], before: dict[str, Any]) -> dict[str, Any]:
+    """Numeric counters accrued between two ``stats()`` readings (nested dicts too)."""
+    out: dict[str, Any] = {}
+    for key, value in after.items():
+        if isinstance(value, dict):
+            out[key] = _counts(value, before.get(key, {}))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            out[key] = value - before.get(key, 0)
+    return out
+
+
+def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    for key, value in more.items():
+        total[key] = _add_counts(total.get(key, {}), value) if isinstance(value, dict) else total.get(key, 0) + value
+    return total
+
+
+# ---------------------------------------------------------------------- processes
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(factory: Callable[[], Controller], threads: int) -> None:
+    torch.set_num_threads(threads)
+    _WORKER["controller"] = factory()
+
+
+def _work(args: tuple[tuple[int, ...], EvalConfig]) -> dict[str, Any]:
+    seeds, config = args
+    with torch.no_grad():  # not inference_mode: gradient planners re-enable autograd inside
+        return run_group(_WORKER["controller"], seeds, config)
+
+
+def evaluate(factory: Callable[[], Controller], config: EvalConfig,
+             on_group: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Run every seed; ``factory`` (picklable) builds the controller inside each process."""
+    t0 = time.perf_counter()
+    jobs = [(g, config) for g in config.groups()]
+    groups: list[dict[str, Any]] = []
+    for group in _map(factory, jobs, config):
+        groups.append(group)
+        if on_group:
+            on_group(group)
+    return summarize(groups, time.perf_counter() - t0, config)
+
+
+def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
+    if config.workers == 1 or len(jobs) == 1:
+        previous = torch.get_num_threads()
+        _init_worker(factory, config.threads)
+        try:
+            yield from map(_work, jobs)
+        finally:
+            torch.set_num_threads(previous)
+        return
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(min(config.workers, len(jobs)), initializer=_init_worker, initargs=(factory, config.threads)) as pool:
+        yield from pool.imap(_work, jobs, chunksize=1)
+
+
+def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> dict[str, Any]:
+    """Mean score, success rate and decision latency (per batched call and per episode decision)."""
+    rows = sorted((r for g in groups for r in g["episodes"]), key=lambda r: r["seed"])
+    calls = [c for g in groups for c in g["calls"]]
+    per_episode = [c / g["group_size"] for g in groups for c in g["calls"]]
+    parts: dict[str, float] = {}
+    for g in groups:
+        for name, sec in g["parts"].items():
+            parts[name] = parts.get(name, 0.0) + sec
+    total = sum(parts.values()) or 1.0
+    stats: dict[str, Any] = {}
+    for g in groups:
+        _add_counts(stats, g.get("stats", {}))
+    return {
+        "config": asdict(config),
+        "episodes": rows,
+        "mean_score": float(np.mean([r["score"] for r in rows])),
+        "success_rate": float(np.mean([r["success"] for r in rows])),
+        "call_latency_s": _latency(calls),
+        "decision_latency_s": _latency(per_episode),
+        "time_share": {k: v / total for k, v in parts.items()},
+        **({"controller_stats": stats} if stats else {}),
+        "wall_s": wall,
+    }
+
+
+def _latency(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"mean": float("nan"), "p50": float("nan"), "p95": float("nan")}
+    return {"mean": float(statistics.fmean(values)), "p50": float(np.percentile(values, 50)),
+            "p95": float(np.percentile(values, 95))}
+
+
+def write_results(result: dict[str, Any], out: Path, title: str) -> None:
+    """``episodes.json`` (per seed), ``summary.json`` and ``summary.md`` in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "episodes.json").write_text(json.dumps(result["episodes"], indent=1))
+    (out / "summary.json").write_text(json.dumps({k: v for k, v in result.items() if k != "episodes"}, indent=2))
+    c, d = result["call_latency_s"], result["decision_latency_s"]
+    seeds = result["config"]["seeds"]
+    md = (
+        f"# {title}\n\n| seeds | mean score | success rate | s/decision (per episode) mean / p50 / p95 "
+        f"| s/batched call mean / p50 / p95 | wall s |\n|---|---|---|---|---|---|\n"
+        f"| {seeds[0]}..{seeds[-1]} ({len(seeds)}) | {result['mean_score']:.3f} | {result['success_rate']:.2f} | "
+        f"{d['mean']:.4f} / {d['p50']:.4f} / {d['p95']:.4f} | {c['mean']:.3f} / {c['p50']:.3f} / {c['p95']:.3f} | "
+        f"{result['wall_s']:.0f} |\n"
+    )
+    stats = result.get("controller_stats", {})
+    if "fell_back" in stats:
+        md += (f"\nReward queries: {stats.get('queries', 0)} ({stats.get('cache_hits', 0)} answered from the cache); "
+               f"decisions that fell back: {stats['fell_back']} of {stats.get('decisions', 0)} "
+               f"({', '.join(f'{k} {v}' for k, v in stats.get('fallbacks', {}).items() if v) or 'none'}).\n")
+    (out / "summary.md").write_text(md)
+
+
+def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[str, Any]:
+    """Mean and spread of the score over several sampling seeds (same env seeds): ``summary.md/json``."""
+    scores = np.array([r["mean_score"] for r in results])
+    success = np.array([r["success_rate"] for r in results])
+    agg = {
+        "sampling_seeds": [r["config"]["sampling_seed"] for r in results],
+        "mean_scores": scores.tolist(), "success_rates": success.tolist(),
+        "mean_score": float(scores.mean()), "score_std": float(scores.std(ddof=1)) if len(scores) > 1 else 0.0,
+        "score_range": [float(scores.min()), float(scores.max())],
+        "success_rate": float(success.mean()),
+        "decision_latency_s_p50": float(np.median([r["decision_latency_s"]["p50"] for r in results])),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(agg, indent=2))
+    seeds = results[0]["config"]["seeds"]
+    rows = "".join(f"| {s} | {m:.3f} | {r:.2f} |\n" for s, m, r in zip(agg["sampling_seeds"], scores, success))
+    (out / "summary.md").write_text(
+        f"# {title}\n\nEnv seeds {seeds[0]}..{seeds[-1]} ({len(seeds)}), one row per sampling seed.\n\n"
+        f"| sampling seed | mean score | success rate |\n|---|---|---|\n{rows}"
+        f"| **all** | **{agg['mean_score']:.3f} +- {agg['score_std']:.3f}** (range {agg['score_range'][0]:.3f}-"
+        f"{agg['score_range'][1]:.3f}) | {agg['success_rate']:.2f} |\n\nMedian seconds per decision (per episode): "
+        f"{agg['decision_latency_s_p50']:.4f}\n"
+    )
+    return agg

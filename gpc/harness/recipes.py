@@ -1,0 +1,154 @@
+"""Controllers from checkpoints: the recipe closed-loop evaluation builds in every worker process.
+
+It joins what ``gpc.models`` cannot know (the task's reward geometry, action box and
+simulator) with the checkpoints, and checks that policy and world model belong together
+(``gpc.models.planning.loading.check_pairing``). ``make_recipe`` is what ``gpc eval`` and
+``gpc plan`` call with their options; ``PlannerRecipe`` is picklable, so worker processes
+load the checkpoints themselves.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gpc.datasets.errors import DataError
+from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.protocols import Controller
+from gpc.models.policy.controller import PolicyController, SamplingConfig
+from gpc.tasks import get_task
+from gpc.tasks.base import Task
+
+GT_SIM = "gt-sim"
+BC = "bc"
+REWARDS = ("registration", "learned", "vlm")
+DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """Which reward scores the predicted futures."""
+
+    kind: str = "registration"  # registration (state futures) | learned (image futures) | vlm (selects)
+    aggregate: str = "final"  # final | discounted
+    checkpoint: str | None = None  # learned: the reward checkpoint
+    vlm: Any = None  # vlm: a gpc.models.rewards.vlm.VLMConfig
+
+    def __post_init__(self) -> None:
+        if self.kind not in REWARDS:
+            raise ValueError(f"--reward {self.kind!r}: use one of {', '.join(REWARDS)}")
+        if self.kind == "learned" and not self.checkpoint:
+            raise ValueError("--reward learned needs --reward-checkpoint (train one with `gpc train reward`)")
+        if self.kind == "vlm" and self.vlm is None:
+            raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model")
+
+
+def load_world_model(path: str, task: Task) -> Any:
+    """The task's ground-truth simulator for ``gt-sim``, else a world-model checkpoint of the task (state or image)."""
+    if path == GT_SIM:
+        return task.simulator()
+    from gpc.models.world_models.module import load_world_model as load
+
+    return load(path, task.name)
+
+
+def build_reward(spec: RewardSpec, task: Task) -> Any:
+    """The task's registration reward (its object outline and default goal), or a learned / VLM one."""
+    from gpc.models.rewards.registration import RegistrationReward, RewardConfig
+
+    config = RewardConfig(aggregate=spec.aggregate)
+    registration = RegistrationReward.from_layout(task.layout, config)
+    if spec.kind == "registration":
+        return registration
+    if spec.kind == "learned":
+        from gpc.models.rewards.learned import ImageReward
+
+        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.target.goal, config, task=task.name)
+    from gpc.models.rewards.vlm import VLMReward
+
+    return VLMReward(spec.vlm, render=task.render_state, fallback=registration, task_description=task.description)
+
+
+@dataclass(frozen=True)
+class PlannerRecipe:
+    """Picklable recipe for a controller: BC when ``planner`` is None, else a planner over a world model."""
+
+    policy: str
+    planner: PlannerConfig | None = None
+    world_model: str | None = None  # checkpoint, or "gt-sim"
+    reward: RewardSpec = field(default_factory=RewardSpec)
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    task: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.planner is not None and not self.world_model:
+            raise ValueError(f"--planner {self.planner.kind} needs --world-model CKPT (or --world-model {GT_SIM})")
+        if self.world_model == GT_SIM and self.planner is not None and self.planner.uses_gradients:
+            raise ValueError(f"--planner {self.planner.kind} differentiates through the world model; {GT_SIM} is not differentiable")
+
+    @property
+    def label(self) -> str:
+        if self.planner is None:
+            return BC
+        name = self.planner.label
+        return name.replace("rank", GT_SIM, 1) if self.world_model == GT_SIM else name
+
+    def __call__(self) -> Controller:
+        from gpc.models.planning.loading import check_pairing
+        from gpc.models.planning.planner import Planner
+        from gpc.models.policy.module import PolicyModule
+
+        policy = PolicyModule.load_from_checkpoint(self.policy, task=self.task)
+        if self.planner is None:
+            return PolicyController(policy, self.sampling)
+        assert self.world_model is not None
+        task = get_task(policy.config.task)
+        world_model = load_world_model(self.world_model, task)
+        check_pairing(policy, world_model, self.world_model)
+        box = task.layout.action
+        config = dataclasses.replace(self.planner, action_low=box.low, action_high=box.high)
+        return Planner(config, world_model, build_reward(self.reward, task), policy, self.sampling)
+
+    def summary(self) -> dict[str, Any]:
+        """What a results file records about the controller."""
+        out: dict[str, Any] = {"controller": self.label, "policy": self.policy}
+        if self.planner is not None:
+            out.update(planner=dataclasses.asdict(self.planner), world_model=self.world_model, reward=self.reward.kind)
+        return out
+
+
+def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
+                m: int | None = None, lr: float = 2.0, reward: RewardSpec = RewardSpec(),
+                sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False) -> PlannerRecipe:
+    """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
+
+    The checkpoints are opened and the controller built once here, so a mismatched world model,
+    reward or goal mode fails now, in one line, before any episode runs.
+    """
+    from gpc.models.policy.module import PolicyModule
+
+    loaded = PolicyModule.load_from_checkpoint(str(policy))
+    task = get_task(loaded.config.task)
+    task.check_goal(goal)
+    unseen = [key for key in loaded.obs_keys if key not in task.record_keys(True, goal)]
+    if unseen:
+        raise DataError(f"{policy}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "
+                        f"observe (a policy trained with --goal random needs --goal random)")
+    if planner == BC:
+        if world_model or k or m:
+            raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
+        return PlannerRecipe(str(policy), sampling=sampling, task=task.name)
+    kind = "rank" if planner == GT_SIM else planner
+    if planner == GT_SIM:
+        if world_model not in (None, GT_SIM):
+            raise ValueError(f"--planner {GT_SIM} uses the true simulator; drop --world-model {world_model}")
+        world_model = GT_SIM
+    box = task.layout.action
+    config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
+                           opt_steps=m if m is not None else DEFAULT_STEPS.get(kind, 30), lr=lr,
+                           action_low=box.low, action_high=box.high, keep_futures=keep_futures)
+    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, task.name)
+    recipe()  # build it once here: a mismatched world model or reward fails now, in one line
+    return recipe

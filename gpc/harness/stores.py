@@ -1,0 +1,64 @@
+"""What a store holds, for `gpc data info` and `gpc data video`: keys, episodes, scores, coverage, an MP4."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gpc.datasets.errors import DataError
+from gpc.datasets.store import EpisodeStore
+from gpc.harness.video import write_mp4
+from gpc.tasks import DEFAULT_TASK, get_task
+
+
+def _task_of(store: EpisodeStore) -> str:
+    """Our stores name their task; a store without that record (Diffusion Policy's) is taken as the default task's."""
+    return str(store.attrs.get("task", DEFAULT_TASK if "state" in store.keys else ""))
+
+
+def describe_store(path: Path) -> dict[str, Any]:
+    """Episodes, steps, keys and shapes, episode lengths, contact fraction, scores and pose coverage."""
+    store = EpisodeStore.open(path)
+    store.check_finite([k for k in store.keys if k != "img"])
+    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
+    info: dict = {
+        "path": str(path), "episodes": store.n_episodes, "steps": store.n_steps,
+        "keys": {k: {"shape": list(store.shape(k)), "dtype": str(store.array(k).dtype)} for k in store.keys},
+        "episode_length": _stats(lengths) if store.n_episodes else {},
+        "attrs": store.attrs,
+    }
+    if "n_contacts" in store.keys and store.n_steps:
+        info["contact_fraction"] = float((store.read("n_contacts")[:, 0] > 0).mean())
+    scores = store.episode_scores()
+    task_name = _task_of(store)
+    if (scores is None or not np.all(np.isfinite(scores))) and task_name and "state" in store.keys and store.n_episodes:
+        scores = get_task(task_name).episode_scores(store.read("state"), store.episode_ends)
+    if scores is not None and store.n_episodes:
+        info["score"] = {**_stats(scores), "success_rate": float(np.mean(scores >= 1.0))}
+    coverage = get_task(task_name).pose_coverage if task_name else None
+    if coverage is not None and "state" in store.keys and store.n_steps:
+        info["pose_coverage"] = float(coverage(store.read("state")))
+    return info
+
+
+def _stats(values: np.ndarray) -> dict[str, float]:
+    v = np.asarray(values, dtype=np.float64)
+    return {"mean": float(v.mean()), "min": float(v.min()), "p50": float(np.median(v)), "max": float(v.max())}
+
+
+def episode_video(path: Path, episode: int, out: Path | None) -> Path:
+    """One episode as an MP4: its recorded frames, or its states drawn by the task."""
+    store = EpisodeStore.open(path)
+    ep = store.episode(episode, [k for k in ("img", "state") if k in store.keys] or None)
+    out = out or path.with_name(f"{path.name.removesuffix('.zarr')}_ep{episode}.mp4")
+    if "img" in ep:
+        frames = np.clip(np.rint(ep["img"]), 0, 255).astype(np.uint8)
+        write_mp4(frames, out, scale=4)
+    elif "state" in ep and _task_of(store):
+        task = get_task(_task_of(store))
+        write_mp4((task.render_state(s, size=384) for s in ep["state"]), out)
+    else:
+        raise DataError(f"{path}: episode {episode} has neither img nor state to draw")
+    return out

@@ -1,0 +1,147 @@
+"""Observation encoders: one interface, built from per-key parts, for every observation type.
+
+An observation type names the data keys it reads and how each becomes features:
+
+=========  =========================  ===============================================
+obs type   data keys                  features per step
+=========  =========================  ===============================================
+state      state                      the normalised state vector
+keypoints  keypoint, state            flattened keypoints + agent position
+image      img, state                 ResNet18 spatial-softmax features + agent position
+=========  =========================  ===============================================
+
+With ``goal=True`` (a goal that varies per episode, GPC's random-goal variant) the encoder
+also reads the goal: its pose (``goal``) for state observations, its keypoints
+(``goal_keypoint``) for keypoint ones; images show the goal drawn in the scene already.
+
+The agent position is the first ``agent_dims`` entries of ``state``. Inputs arrive
+normalised (``MinMaxNormalizer``) with shapes ``(B, T, *step_shape)``; images are
+``(B, T, H, W, C)`` in [-1, 1]. Images are randomly cropped in training mode and
+centre-cropped in evaluation mode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from gpc.models.networks.resnet import ResNet18Keypoints
+
+OBS_KEYS: dict[str, tuple[str, ...]] = {
+    "state": ("state",),
+    "keypoints": ("keypoint", "state"),
+    "image": ("img", "state"),
+}
+GOAL_KEYS: dict[str, tuple[str, ...]] = {"state": ("goal",), "keypoints": ("goal_keypoint",), "image": ()}
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Which observation type to encode, the data's step shapes, and the image network's size."""
+
+    obs_type: str = "state"  # state | keypoints | image (see the module docstring)
+    obs_shapes: tuple[tuple[str, tuple[int, ...]], ...] = ()  # (data key, shape of one step), filled from the data
+    agent_dims: int = 2  # leading entries of `state` holding the agent position (keypoints and image obs)
+    crop_size: int = 84  # square crop of the image: random in training, centred at evaluation
+    resnet_width: int = 64  # ResNet18 stem width (64 is the standard network; smaller for CPU or tests)
+    spatial_keypoints: int = 32  # spatial-softmax maps (each gives an expected x, y)
+    image_feature_dim: int = 64  # features per image after the spatial softmax's linear map
+    goal: bool = False  # the goal varies per episode: also read it (GOAL_KEYS)
+
+    def __post_init__(self) -> None:
+        if self.obs_type not in OBS_KEYS:
+            raise ValueError(f"obs type {self.obs_type!r}: use one of {', '.join(OBS_KEYS)}")
+        for name in ("agent_dims", "crop_size", "resnet_width", "spatial_keypoints", "image_feature_dim"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """Data keys this observation type reads."""
+        return OBS_KEYS[self.obs_type] + (GOAL_KEYS[self.obs_type] if self.goal else ())
+
+    def shape(self, key: str) -> tuple[int, ...]:
+        shapes = dict(self.obs_shapes)
+        if key not in shapes:
+            raise ValueError(f"obs type {self.obs_type!r} needs the shape of data key {key!r}; config has {sorted(shapes)}")
+        return tuple(shapes[key])
+
+
+class VectorPart(nn.Module):
+    """A vector key, flattened, optionally only its first ``take`` entries (no parameters)."""
+
+    def __init__(self, key: str, shape: tuple[int, ...], take: int | None = None) -> None:
+        super().__init__()
+        size = 1
+        for s in shape:
+            size *= s
+        if take is not None and take > size:
+            raise ValueError(f"data key {key!r}: cannot take {take} entries from a step of {size}")
+        self.key, self.take = key, take
+        self.out_dim = size if take is None else take
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        flat = x.flatten(start_dim=2)
+        return flat if self.take is None else flat[..., : self.take]
+
+
+def crop_images(x: torch.Tensor, size: int, random: bool) -> torch.Tensor:
+    """``(N, H, W, C)`` -> ``(N, size, size, C)``: an independent random crop per image, or the centre."""
+    n, h, w = x.shape[:3]
+    if not random:
+        top, left = (h - size) // 2, (w - size) // 2
+        return x[:, top : top + size, left : left + size]
+    top = torch.randint(0, h - size + 1, (n,), device=x.device)
+    left = torch.randint(0, w - size + 1, (n,), device=x.device)
+    offsets = torch.arange(size, device=x.device)
+    rows = (top[:, None] + offsets)[:, :, None]
+    cols = (left[:, None] + offsets)[:, None, :]
+    return x[torch.arange(n, device=x.device)[:, None, None], rows, cols]
+
+
+class ImagePart(nn.Module):
+    """An image key through crop -> ResNet18 -> spatial softmax -> linear."""
+
+    def __init__(self, key: str, shape: tuple[int, ...], config: EncoderConfig) -> None:
+        super().__init__()
+        if len(shape) != 3:
+            raise ValueError(f"data key {key!r}: images must be (H, W, C) per step, got {shape}")
+        h, w, c = shape
+        if config.crop_size > min(h, w):
+            raise ValueError(f"crop_size {config.crop_size} is larger than the {h}x{w} images of {key!r}")
+        self.key, self.crop = key, config.crop_size
+        self.net = ResNet18Keypoints(c, config.resnet_width, config.spatial_keypoints, config.image_feature_dim)
+        self.out_dim = config.image_feature_dim
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, t = x.shape[:2]
+        images = crop_images(x.flatten(0, 1), self.crop, random=self.training)
+        return self.net(images.permute(0, 3, 1, 2).contiguous()).reshape(b, t, -1)
+
+
+class ObsEncoder(nn.Module):
+    """``{key: (B, T, ...)}`` normalised observations -> ``(B, T, feature_dim)``."""
+
+    def __init__(self, config: EncoderConfig) -> None:
+        super().__init__()
+        self.config = config
+        agent = config.agent_dims
+        if config.obs_type == "state":
+            parts = [VectorPart("state", config.shape("state"))]
+        elif config.obs_type == "keypoints":
+            parts = [VectorPart("keypoint", config.shape("keypoint")), VectorPart("state", config.shape("state"), agent)]
+        else:
+            parts = [ImagePart("img", config.shape("img"), config), VectorPart("state", config.shape("state"), agent)]
+        if config.goal:
+            parts += [VectorPart(key, config.shape(key)) for key in GOAL_KEYS[config.obs_type]]
+        self.parts = nn.ModuleList(parts)
+        self.feature_dim = sum(p.out_dim for p in parts)
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        return self.config.keys
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.cat([part(obs[part.key]) for part in self.parts], dim=-1)

@@ -1,0 +1,85 @@
+"""What a planner does at each decision, as one validated config (the CLI fills it).
+
+``rank``, ``opt`` and ``rank-opt`` start from the frozen policy's proposals (GPC); ``cem``,
+``mppi`` and ``grad`` start from random chunks (the paper's prior-free comparison). The
+ground-truth-simulator ceiling is ``rank`` with the simulator as world model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+PLANNERS = ("rank", "opt", "rank-opt", "cem", "mppi", "grad")
+WITH_POLICY = ("rank", "opt", "rank-opt")  # planners that read the policy's proposals
+WITH_GRADIENTS = ("opt", "rank-opt", "grad")  # planners that differentiate through world model and reward
+PRIOR_FREE = ("cem", "mppi", "grad")  # planners that start from random chunks in the action box
+MAX_PROPOSALS = 100_000
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """K proposals (or samples per iteration), M iterations, and the search's step sizes.
+
+    ``opt`` refines one proposal (K is 1); ``rank`` takes no steps (M is 0). Actions stay inside
+    ``[action_low, action_high]``, the task's action box, filled in by the caller (the planners
+    that draw random chunks, ``cem``, ``mppi`` and ``grad``, need it; the others clip to it when given).
+    """
+
+    kind: str = "rank"  # rank | opt | rank-opt | cem | mppi | grad
+    num_proposals: int = 100  # K: policy proposals, random initial chunks, or samples per CEM/MPPI iteration
+    opt_steps: int = 0  # M: gradient-ascent steps (opt, rank-opt, grad) or CEM/MPPI iterations
+    lr: float = 2.0  # Adam step size on the raw actions (action units, e.g. px)
+    elite_fraction: float = 0.1  # CEM: share of samples refitted
+    temperature: float = 2.0  # MPPI: softmax temperature, in reward units
+    init_std: float = 0.25  # CEM/MPPI: initial std as a fraction of the action range
+    action_low: float | None = None  # lower bound of every action entry (the task's)
+    action_high: float | None = None  # upper bound of every action entry (the task's)
+    keep_futures: bool = False  # return every candidate's predicted future (for videos; memory grows with K)
+
+    def __post_init__(self) -> None:
+        if self.kind not in PLANNERS:
+            raise ValueError(f"--planner {self.kind!r}: use one of {', '.join(PLANNERS)}")
+        if not 1 <= self.num_proposals <= MAX_PROPOSALS:
+            raise ValueError(f"--K {self.num_proposals}: must lie in 1..{MAX_PROPOSALS}")
+        if self.kind == "opt" and self.num_proposals != 1:
+            raise ValueError(f"--K {self.num_proposals}: opt refines one proposal (use rank-opt for several)")
+        if not 0 <= self.opt_steps <= 10_000:
+            raise ValueError(f"--M {self.opt_steps}: must lie in 0..10000")
+        if self.kind in ("opt", "rank-opt", "grad", "cem", "mppi") and self.opt_steps < 1:
+            raise ValueError(f"--M {self.opt_steps}: {self.kind} needs at least one step")
+        if self.kind == "rank" and self.opt_steps:
+            raise ValueError(f"--M {self.opt_steps}: rank takes no gradient steps (use rank-opt)")
+        if self.lr <= 0 or self.temperature <= 0 or not 0 < self.init_std <= 1:
+            raise ValueError(f"--lr {self.lr} and --temperature {self.temperature} must be > 0, init_std in (0, 1]")
+        if not 0 < self.elite_fraction <= 1:
+            raise ValueError(f"--elite-fraction {self.elite_fraction}: must lie in (0, 1]")
+        if (self.action_low is None) != (self.action_high is None):
+            raise ValueError("action bounds: give both action_low and action_high, or neither")
+        if self.action_low is not None and self.action_high is not None and self.action_low >= self.action_high:
+            raise ValueError(f"action bounds ({self.action_low}, {self.action_high}): low must be below high")
+        if self.kind in PRIOR_FREE and self.action_low is None:
+            raise ValueError(f"--planner {self.kind} draws random chunks and needs the action box (action_low, action_high)")
+
+    @property
+    def uses_policy(self) -> bool:
+        return self.kind in WITH_POLICY
+
+    @property
+    def uses_gradients(self) -> bool:
+        return self.kind in WITH_GRADIENTS
+
+    @property
+    def box(self) -> tuple[float, float]:
+        """The action box, for the planners that need one (``PRIOR_FREE``)."""
+        if self.action_low is None or self.action_high is None:
+            raise ValueError(f"planner {self.kind} needs the action box (action_low, action_high)")
+        return self.action_low, self.action_high
+
+    @property
+    def label(self) -> str:
+        """Short name for tables: ``rank K=100``, ``rank-opt 10x30``, ``opt M=30``."""
+        if self.kind == "rank":
+            return f"rank K={self.num_proposals}"
+        if self.kind == "opt":
+            return f"opt M={self.opt_steps}"
+        return f"{self.kind} {self.num_proposals}x{self.opt_steps}"

@@ -1,0 +1,55 @@
+"""Planners from checkpoints: the pairing check and deployment on your own robot loop.
+
+A world model must predict the task the policy acts in, from observations the policy's
+setting has: state and keypoint policies pair with state world models, image policies with
+visual ones. ``load_planner`` checks that before it returns a controller.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from gpc.datasets.errors import DataError
+from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.planner import Planner
+from gpc.models.planning.protocols import Reward, WorldModel
+from gpc.models.policy.controller import SamplingConfig
+from gpc.models.policy.module import PolicyModule
+from gpc.models.world_models.module import load_world_model
+
+IMAGE_KEY = "img"
+IMAGE_POLICIES = ("image",)
+
+
+def check_pairing(policy: PolicyModule, world_model: Any, source: str) -> None:
+    """Refuse a world model of another task, or of the other observation family, than the policy's.
+
+    A model without a gpc config (the ground-truth simulator, your own) is taken as it is.
+    """
+    config = getattr(world_model, "config", None)
+    if config is None or not hasattr(config, "task"):
+        return
+    if config.task != policy.config.task:
+        raise DataError(f"{source}: world model for task {config.task!r}, but the policy acts in {policy.config.task!r}")
+    visual = getattr(world_model, "obs_key", "state") == IMAGE_KEY
+    if visual != (policy.config.obs_type in IMAGE_POLICIES):
+        raise DataError(
+            f"{source}: a {'visual' if visual else 'state'} world model cannot plan for a {policy.config.obs_type} "
+            "policy (pair state/keypoints policies with state world models, image policies with visual ones)"
+        )
+
+
+def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os.PathLike | WorldModel, reward: Reward,
+                 config: PlannerConfig = PlannerConfig(), sampling: SamplingConfig = SamplingConfig()) -> Planner:
+    """Deployment: a policy and a world model (checkpoints or objects) + a reward -> a controller with ``act(obs_history)``.
+
+    No simulator is involved; give ``config.action_low/high`` your robot's action box.
+    """
+    if not isinstance(policy, PolicyModule):
+        policy = PolicyModule.load_from_checkpoint(policy)
+    source = str(world_model) if isinstance(world_model, (str, os.PathLike)) else type(world_model).__name__
+    if isinstance(world_model, (str, os.PathLike)):
+        world_model = load_world_model(world_model)
+    check_pairing(policy, world_model, source)
+    return Planner(config, world_model, reward, policy, sampling)

@@ -1,0 +1,59 @@
+"""The planners' objective: world model and reward as one function of candidate chunks, timed by part.
+
+DINO-WM's planner interface: a planner receives this objective and asks it for one score per
+candidate; it never calls the world model or the reward itself.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from typing import Iterator, Sequence
+
+import torch
+
+from gpc.models.planning.protocols import Reward, WorldModel
+
+GOAL_KEY = "goal"  # the observation holding a per-episode goal, passed to the reward
+
+
+class PartTimer:
+    """Seconds spent per part of a decision (policy, world_model, reward, optimizer)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, part: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - t0
+
+
+class Objective:
+    """World model + reward as one function of ``(B, K, T, A)`` chunks -> ``(B, K)`` scores."""
+
+    def __init__(self, world_model: WorldModel, reward: Reward, history: torch.Tensor,
+                 goal: torch.Tensor | None, timer: PartTimer, episodes: Sequence[int] | None = None) -> None:
+        self.world_model, self.reward, self.timer = world_model, reward, timer
+        self.history, self.goal = history, goal  # (B, H, D), (B, G) or None
+        self.episodes = episodes  # ids of the B histories' episodes (a selector warns once per episode)
+
+    def __call__(self, chunks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(B, K, T, A)`` -> scores ``(B, K)`` and predicted futures ``(B, K, T', ...)``."""
+        b, k = chunks.shape[:2]
+        history = self.history[:, None].expand(b, k, *self.history.shape[1:]).flatten(0, 1)
+        with self.timer("world_model"):
+            futures = self.world_model.rollout(history, chunks.flatten(0, 1))
+        with self.timer("reward"):
+            if getattr(self.reward, "selects", False):  # a selector ranks one history's candidates at a time
+                goals = [None if self.goal is None else self.goal[i] for i in range(b)]
+                per = futures.unflatten(0, (b, k))
+                ids = self.episodes if self.episodes is not None and len(self.episodes) == b else range(b)
+                scores = torch.stack([self.reward(per[i], goals[i], episode=int(ids[i])) for i in range(b)])
+            else:
+                goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
+                scores = self.reward(futures, goal).unflatten(0, (b, k))
+        return scores, futures.unflatten(0, (b, k))

@@ -1,0 +1,65 @@
+"""The behaviour-cloning controller: the frozen policy's own proposal, executed as Diffusion Policy does."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import torch
+
+from gpc.models.policy.module import PolicyModule
+from gpc.models.planning.protocols import Plan
+
+
+@dataclass(frozen=True)
+class SamplingConfig:
+    """How the policy samples at deployment (``None``: the checkpoint's own setting)."""
+
+    method: str | None = None  # ddim | ddpm
+    steps: int | None = None  # denoising steps
+    spacing: str | None = None  # leading | trailing (see models.diffusion)
+
+    def __post_init__(self) -> None:
+        if self.method not in (None, "ddim", "ddpm"):
+            raise ValueError(f"--method {self.method!r}: use ddim or ddpm")
+        if self.steps is not None and self.steps < 1:
+            raise ValueError(f"--steps {self.steps}: must be at least 1")
+        if self.spacing not in (None, "leading", "trailing"):
+            raise ValueError(f"--spacing {self.spacing!r}: use leading or trailing")
+
+    @property
+    def overrides(self) -> dict[str, object]:
+        """Keyword arguments for ``PolicyModule.sample_batch``."""
+        return {"method": self.method, "steps": self.steps, "spacing": self.spacing}
+
+
+class PolicyController:
+    """GPC's K=1, M=0 case: sample one chunk per history and execute its first actions."""
+
+    def __init__(self, policy: PolicyModule, sampling: SamplingConfig = SamplingConfig()) -> None:
+        self.policy = policy
+        self.sampling = sampling
+        self.obs_keys = policy.obs_keys
+        self.n_obs_steps = policy.config.n_obs_steps
+
+    def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
+        t0 = time.perf_counter()
+        batch = {k: torch.as_tensor(obs[k]) for k in self.obs_keys}
+        chunk = self.policy.sample_batch(batch, 1, list(generators), **self.sampling.overrides)[:, 0].cpu().numpy()
+        now = chunk[:, self.policy.action_slice.start :]  # the chunk from the current step on
+        return Plan(actions=now[:, : self.policy.config.n_action_steps], chunk=now,
+                    seconds={"policy": time.perf_counter() - t0})
+
+
+@dataclass(frozen=True)
+class PolicyControllerFactory:
+    """Picklable recipe for a ``PolicyController``: worker processes load the checkpoint themselves."""
+
+    checkpoint: str
+    sampling: SamplingConfig = SamplingConfig()
+    task: str | None = None
+
+    def __call__(self) -> PolicyController:
+        return PolicyController(PolicyModule.load_from_checkpoint(self.checkpoint, task=self.task), self.sampling)

@@ -1,0 +1,229 @@
+"""One training run for any component: Zarr stores -> DataModule -> module -> checkpoints in a run directory.
+
+``train(ModuleClass, config, datasets, run)`` trains a policy, a world model or a reward
+predictor alike (``models.training.module.TrainableModule`` says what each supplies);
+``fit_module`` is the Lightning loop inside it.
+
+Run directory layout::
+
+    RUN_DIR/run.json                 what was trained on what (written by rank 0)
+    RUN_DIR/checkpoints/last.ckpt    refreshed every ``checkpoint_every`` steps and at the end
+    RUN_DIR/checkpoints/best.ckpt    lowest validation loss so far
+    RUN_DIR/tensorboard/             TensorBoard events
+
+``resume=True`` continues from ``last.ckpt`` (weights, EMA, optimiser, schedule, step count,
+held-out episodes); the checkpoint's own config wins over the one passed in. ``init``
+starts a new run from another checkpoint's weights (world-model phase 2 from phase 1),
+keeping the episodes it held out. A non-finite loss skips that update, stops training and
+raises ``TrainingDiverged`` after ``last.ckpt`` has been written with the last good weights.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import Callback, LearningRateMonitor, ModelCheckpoint, RichProgressBar
+from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
+
+from gpc.datasets.datamodule import EpisodeDataModule
+from gpc.datasets.errors import DataError
+from gpc.datasets.sequence import recorded_split
+from gpc.models.training.checkpoint import read_checkpoint
+from gpc.models.training.config import RunConfig
+from gpc.models.training.module import TrainableModule
+
+LAST, BEST = "last.ckpt", "best.ckpt"
+
+
+class _DropTips(logging.Filter):
+    """Lightning advertises a cloud logger on every run; keep the console to what matters."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "Tip:" not in record.getMessage()
+
+
+_LIGHTNING_LOG = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+if not any(isinstance(f, _DropTips) for f in _LIGHTNING_LOG.filters):
+    _LIGHTNING_LOG.addFilter(_DropTips())
+
+
+class TrainingDiverged(ValueError):
+    """The loss became NaN or infinite; the message names the step and the last good checkpoint."""
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    run_dir: Path
+    last: Path
+    best: Path | None
+    global_step: int
+    best_val_loss: float | None
+    module: L.LightningModule  # the trained module as training left it (weights equal last.ckpt's)
+    rank: int = 0  # this process's global rank (DDP runs return in every process)
+
+
+class LastCheckpoint(Callback):
+    """Writes ``last.ckpt`` every ``every`` steps and at the end, via a temporary file and a rename."""
+
+    def __init__(self, path: Path, every: int) -> None:
+        self.path, self.every = path, every
+        self._saved_at = -1
+
+    def _save(self, trainer: L.Trainer) -> None:
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        trainer.save_checkpoint(tmp, weights_only=False)
+        if trainer.is_global_zero:
+            os.replace(tmp, self.path)
+        trainer.strategy.barrier("gpc-last-checkpoint")
+        self._saved_at = trainer.global_step
+
+    def on_train_batch_end(self, trainer: L.Trainer, *args: object) -> None:
+        if trainer.global_step % self.every == 0 and trainer.global_step != self._saved_at:
+            self._save(trainer)
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.global_step != self._saved_at:
+            self._save(trainer)
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
+        # Ctrl-C in a single process: keep the progress (a collective save could hang under DDP).
+        if isinstance(exception, KeyboardInterrupt) and trainer.world_size == 1 and trainer.global_step != self._saved_at:
+            self._save(trainer)
+
+
+class StepProgressBar(RichProgressBar):
+    """Rich bar that shows the global step instead of the logger's version and an epoch bound of -1."""
+
+    def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict:
+        items = super().get_metrics(trainer, pl_module)
+        items.pop("v_num", None)
+        limit = trainer.max_steps
+        items["step"] = f"{trainer.global_step}/{limit}" if limit > 0 else str(trainer.global_step)
+        return items
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        return f"epoch {current_epoch}"
+
+
+def check_run_dir(run: RunConfig) -> Path:
+    """``RUN_DIR/checkpoints/last.ckpt``, after refusing to resume nothing or to overwrite a run."""
+    last = Path(run.run_dir) / "checkpoints" / LAST
+    if run.resume:
+        if not last.is_file():
+            raise DataError(f"{run.run_dir}: nothing to resume (no checkpoints/{LAST}); drop --resume to start a run")
+    elif last.exists():
+        raise DataError(f"{run.run_dir}: already holds a training run; pass --resume to continue it or pick another --out")
+    return last
+
+
+@rank_zero_only
+def _write_run_record(run_dir: Path, kind: str, config: Any, record: dict[str, Any], run: RunConfig) -> None:
+    out = {"kind": kind, "config": config.to_dict(), **record,
+           "run": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(run).items()}}
+    (run_dir / "run.json").write_text(json.dumps(out, indent=2))
+
+
+def _stored_config(cls: type[TrainableModule], ckpt: dict[str, Any], path: Path) -> Any:
+    try:
+        return cls.config_from_dict(ckpt["hyper_parameters"]["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{path}: {cls.WHAT} checkpoint with an unreadable config ({exc})") from None
+
+
+def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
+          init: str | os.PathLike | None = None) -> TrainResult:
+    """Train (or resume) the component ``cls`` with ``config`` on the given stores; returns where the checkpoints are.
+
+    ``init``: a checkpoint of the same kind whose weights (and held-out episodes) a new run starts from.
+    """
+    run_dir = Path(run.run_dir)
+    last = check_run_dir(run)
+    paths = tuple(str(p) for p in datasets)
+    start_step, ckpt, init_state = 0, None, None
+    if run.resume:
+        ckpt = read_checkpoint(last, cls.KIND, task=config.task)
+        stored = _stored_config(cls, ckpt, last)
+        cls.check_resume(stored, config, str(last))
+        config, start_step = stored, int(ckpt.get("global_step", 0))
+        init = ckpt["hyper_parameters"].get("data", {}).get("init")
+    elif init is not None:
+        ckpt = read_checkpoint(init, cls.KIND, task=config.task, obs=getattr(config, "obs_type", None))
+        config = cls.continue_from(config, _stored_config(cls, ckpt, Path(init)), str(init))
+        init_state = ckpt["state_dict"]
+    else:
+        cls.check_start(config)
+
+    # A run started from a checkpoint holds out the episodes it held out, whatever its own seed:
+    # otherwise its "held-out" episodes would have been trained on.
+    split = (recorded_split(ckpt["hyper_parameters"].get("data", {})) if ckpt else None) or (run.seed, run.val_ratio)
+    data = EpisodeDataModule(cls.data_config(config, paths, run, split))
+    config = cls.fit_to_data(config, data.arrays, paths[0], resumed=run.resume)
+    record = {"datasets": list(paths), "val_ratio": split[1], "seed": run.seed, "split_seed": split[0],
+              "init": None if init is None else str(init)}
+    (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
+    _write_run_record(run_dir, cls.KIND, config, record, run)
+
+    L.seed_everything(run.seed + start_step, workers=True, verbose=False)
+    if init_state is None:
+        module = cls.from_data(config, data, record)
+    else:
+        module = cls(config, data=record)  # type: ignore[call-arg]
+        try:
+            module.load_state_dict(init_state)
+        except RuntimeError as exc:
+            raise DataError(f"{init}: weights do not fit the {cls.WHAT} ({str(exc).splitlines()[0][:200]})") from None
+    return fit_module(module, data, run, validate=len(data.val_episodes) > 0)
+
+
+def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunConfig, validate: bool) -> TrainResult:
+    """Run Lightning on any of our modules: last/best checkpoints, TensorBoard, resume, NaN stop.
+
+    The module logs ``val/loss`` (when ``validate``) and sets ``diverged_at`` (a step, or
+    ``None``) when its loss turns non-finite; ``last.ckpt`` is resumed when ``run.resume``.
+    """
+    run_dir = Path(run.run_dir)
+    ckpt_dir = run_dir / "checkpoints"
+    last = ckpt_dir / LAST
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every), LearningRateMonitor("step")]
+    best_cb = None
+    if validate:
+        best_cb = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST[:-5], monitor="val/loss", mode="min", save_top_k=1,
+                                  auto_insert_metric_name=False, enable_version_counter=False,
+                                  save_on_train_epoch_end=False)
+        callbacks.append(best_cb)
+    if run.progress:
+        callbacks.append(StepProgressBar())
+    devices = int(run.devices) if isinstance(run.devices, str) and run.devices.isdigit() else run.devices
+    trainer = L.Trainer(
+        default_root_dir=run_dir, max_steps=run.max_steps or -1, max_epochs=run.max_epochs or (-1 if run.max_steps else None),
+        accelerator=run.accelerator, devices=devices, strategy=run.strategy, num_nodes=run.num_nodes,
+        precision=run.precision, logger=TensorBoardLogger(save_dir=run_dir, name="", version="tensorboard"),
+        callbacks=callbacks, enable_progress_bar=run.progress, log_every_n_steps=run.log_every,
+        val_check_interval=run.val_every, check_val_every_n_epoch=None if run.val_every else 1,
+        num_sanity_val_steps=0, enable_model_summary=run.progress,
+    )
+    with warnings.catch_warnings():
+        # The EMA copy is meant to stay in eval mode; Lightning would warn about it on every run.
+        warnings.filterwarnings("ignore", message=r".*module\(s\) in eval mode.*")
+        warnings.filterwarnings("ignore", message=r".*smaller than the logging interval.*")
+        trainer.fit(module, datamodule=data, ckpt_path=last if run.resume else None, weights_only=True)
+    diverged_at = getattr(module, "diverged_at", None)
+    if diverged_at is not None:
+        raise TrainingDiverged(
+            f"loss became non-finite at step {diverged_at}; training stopped and {last} holds the last "
+            "good weights (check the data, lower the learning rate or use 32-bit precision, then --resume)"
+        )
+    best = Path(best_cb.best_model_path) if best_cb is not None and best_cb.best_model_path else None
+    score = best_cb.best_model_score if best_cb is not None else None
+    return TrainResult(run_dir, last, best, trainer.global_step,
+                       float(score) if isinstance(score, torch.Tensor) else None, module, trainer.global_rank)

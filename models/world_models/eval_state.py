@@ -1,0 +1,124 @@
+"""How far a state world model's rollouts drift from recorded futures, per horizon step.
+
+Each held-out window gives a history of H recorded states and the next T recorded actions;
+the model rolls them out open-loop and every predicted state is compared with the recorded
+one. Beside it stands the trivial "nothing moves" baseline that copies the last history
+state forward. Errors: object position (px), object angle (deg, wrapped), agent position
+(px) and the registration distance (px: mean vertex distance between predicted and recorded
+pose, what the planner's reward reads), where the task's layout says they sit.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from gpc.datasets.errors import DataError
+from gpc.datasets.layout import StateLayout, TaskLayout
+from gpc.datasets.sequence import WindowSpec, recorded_held_out, window_indices, window_starts
+from gpc.datasets.windows import load_stores
+from gpc.models.rewards.registration import registration_distance
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.state import ACTION_KEY, STATE_KEY, wrap_angle
+
+SPLITS = ("val", "all")
+METRICS = {"object_px": "object px", "object_deg": "object deg", "agent_px": "agent px", "registration_px": "vertices px"}
+
+
+def _errors(pred: torch.Tensor, true: torch.Tensor, layout: StateLayout, vertices: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors."""
+    pose = list(layout.object_pose)
+    out = {"object_px": (pred[..., pose[:2]] - true[..., pose[:2]]).norm(dim=-1)}
+    if layout.has_angle:
+        out["object_deg"] = wrap_angle(pred[..., pose[2]] - true[..., pose[2]]).abs() * (180.0 / math.pi)
+    if layout.agent_xy:
+        ag = list(layout.agent_xy)
+        out["agent_px"] = (pred[..., ag] - true[..., ag]).norm(dim=-1)
+    if vertices is not None:
+        out["registration_px"] = registration_distance(pred[..., pose], true[..., pose], vertices)
+    return out
+
+
+def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
+                     episodes: int | None = None, horizon: int | None = None, stride: int = 1,
+                     max_windows: int | None = None) -> tuple[Any, np.ndarray, np.ndarray, int]:
+    """The evaluation windows: (arrays, chosen episodes, ``(N, n_obs + T)`` step indices, T).
+
+    ``split="val"``: the validation episodes of the split the model was trained with (its
+    recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
+    store the model never saw). ``episodes``: only the first N of them. Windows start every
+    ``stride`` steps (histories padded at episode starts, futures never); ``max_windows``:
+    only that many, evenly spread.
+    """
+    if split not in SPLITS:
+        raise ValueError(f"split {split!r}: use one of {', '.join(SPLITS)}")
+    if stride < 1:
+        raise ValueError(f"stride {stride}: must be at least 1")
+    h, t = module.n_obs_steps, horizon or module.config.horizon
+    arrays = load_stores([str(p) for p in datasets], tuple(keys))
+    if split == "val":
+        chosen = recorded_held_out(arrays.n_episodes, module.data_record)
+        if len(chosen) == 0:
+            raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
+    else:
+        chosen = np.arange(arrays.n_episodes)
+    if episodes is not None:
+        chosen = chosen[:episodes]
+    rows = window_starts(arrays.episode_ends, chosen, WindowSpec(h + t, h - 1, 0))[::stride]
+    if max_windows is not None and len(rows) > max_windows:
+        rows = rows[np.linspace(0, len(rows) - 1, max_windows).round().astype(int)]
+    idx = np.stack([window_indices(r, h + t) for r in rows])
+    return arrays, chosen, idx, t
+
+
+@torch.no_grad()
+def evaluate_rollouts(
+    module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
+    horizon: int | None = None, layout: TaskLayout | None = None, batch_size: int = 4096, stride: int = 1,
+) -> dict[str, Any]:
+    """Per-step mean errors of the state model and of the "nothing moves" baseline on held-out
+    windows (see ``held_out_windows`` for ``split``, ``episodes``, ``stride``); ``layout``: the
+    task's, for where the object and the agent sit and the object's outline."""
+    if layout is None:
+        raise ValueError("evaluate_rollouts needs the task's layout (gpc.tasks.get_task(name).layout)")
+    arrays, chosen, idx, t = held_out_windows(module, datasets, (STATE_KEY, ACTION_KEY), split, episodes, horizon, stride)
+    h = module.n_obs_steps
+    states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
+    actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
+    verts = torch.tensor(layout.target.vertices, dtype=torch.float32)
+    sums: dict[str, dict[str, torch.Tensor]] = {"model": {}, "baseline": {}}
+    for lo in range(0, len(idx), batch_size):
+        hist, acts, true = states[lo : lo + batch_size, :h], actions[lo : lo + batch_size], states[lo : lo + batch_size, h:]
+        pred = module.rollout(hist, acts).cpu()
+        still = hist[:, -1:].expand_as(true)
+        for name, guess in (("model", pred), ("baseline", still)):
+            for metric, err in _errors(guess, true, layout.state, verts).items():
+                sums[name][metric] = sums[name].get(metric, 0.0) + err.double().sum(dim=0)
+    n = len(idx)
+    means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}
+    steps = [{"step": i + 1, **{name: {m: means[name][m][i] for m in means[name]} for name in means}} for i in range(t)]
+    return {
+        "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(n),
+        "history": h, "horizon": t, "config": module.config.to_dict(), "steps": steps,
+        "mean_over_steps": {name: {m: float(np.mean(v)) for m, v in means[name].items()} for name in means},
+    }
+
+
+def markdown_table(report: dict[str, Any], title: str = "World model rollouts") -> str:
+    """One row per horizon step: each metric as ``model / baseline`` (baseline: nothing moves)."""
+    metrics = [m for m in METRICS if m in report["steps"][0]["model"]]
+    lines = [
+        f"## {title}", "",
+        f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; history {report['history']}, "
+        f"horizon {report['horizon']}. Each cell: model / nothing-moves baseline (mean error).", "",
+        "| step | " + " | ".join(METRICS[m] for m in metrics) + " |",
+        "|---|" + "---|" * len(metrics),
+    ]
+    for row in report["steps"] + [{"step": "mean", **report["mean_over_steps"]}]:
+        cells = [f"{row['model'][m]:.2f} / {row['baseline'][m]:.2f}" for m in metrics]
+        lines.append(f"| {row['step']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

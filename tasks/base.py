@@ -1,0 +1,78 @@
+"""The task interface: everything outside ``tasks/`` receives a task as one ``Task`` and nothing else.
+
+A task brings its data schema (``TaskLayout``: state entries, action box, the object's
+outline and goal, frame geometry), its environment, how one step is observed, its scripted
+collectors (an expert and an explorer), the ground-truth simulator as a world model, a
+renderer for predicted futures and a one-line description for a vision-language model.
+Collection, training, planning and closed-loop evaluation are written against this class
+only; ``tests/toy_task.py`` defines a second task with it and runs every planner on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from gpc.datasets.layout import TaskLayout
+
+COLLECTORS = ("expert", "explore")
+
+
+class TaskEnv(Protocol):
+    """The Gymnasium calls the harness makes (``reset(seed=...)``, ``step``), and a frame for videos."""
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]: ...
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]: ...
+
+    def frame(self, size: int) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class EpisodeStats:
+    """What a scripted episode achieved (``Task.record`` returns it beside the arrays)."""
+
+    seed: int
+    steps: int
+    score: float  # the episode's maximum reward
+    success: bool
+    contact_fraction: float  # share of steps with the agent touching the object (0 when the task does not count)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task, as collection, training, planning and evaluation see it."""
+
+    layout: TaskLayout
+    description: str  # one line a vision-language model is told the task is
+    goal_modes: tuple[str, ...]  # "fixed" (the layout's goal) and, if supported, "random" (a goal per seed)
+    make_env: Callable[[str], TaskEnv]  # goal mode -> a fresh environment
+    observe: Callable[[TaskEnv, bool, bool], dict[str, np.ndarray]]  # (env, images, simulator state) -> one step's observation
+    record_keys: Callable[[bool, str], list[str]]  # (images, goal mode) -> the keys ``record`` stores
+    record: Callable[[str, int, str, bool, int], tuple[dict[str, np.ndarray], EpisodeStats]]  # (collector, seed, goal, images, max steps)
+    collector_params: Callable[[str, int], dict[str, Any]]  # (collector, max steps) -> what a store records about it
+    env_params: Callable[[str, int], dict[str, Any]]  # (goal mode, max steps) -> what a store records about the env
+    simulator: Callable[[], Any]  # the true simulator as a world model (the ceiling planner ``gt-sim``)
+    sim_key: str  # the observation the simulator world model restores from
+    render_state: Callable[..., np.ndarray]  # (state, goal=None, size=96) -> RGB frame as the camera would show it
+    episode_scores: Callable[[np.ndarray, np.ndarray], np.ndarray]  # (states, episode ends) -> each episode's score
+    max_episode_steps: int = 300
+    info_metrics: tuple[str, ...] = ()  # step-info values whose episode maximum a result records (``<name>_max``)
+    draw_plan: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, chunk, executed) -> frame
+    draw_futures: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, futures, scores, chosen)
+    pose_coverage: Callable[[np.ndarray], float] | None = None  # states -> share of the object's pose space visited
+    check_replay: Callable[..., dict[str, Any]] | None = None  # recorded store -> how closely the simulator replays it
+
+    def __post_init__(self) -> None:
+        if not self.goal_modes or self.goal_modes[0] != "fixed":
+            raise ValueError(f"task {self.name}: goal modes {self.goal_modes} must start with 'fixed'")
+
+    @property
+    def name(self) -> str:
+        return self.layout.name
+
+    def check_goal(self, goal: str) -> None:
+        if goal not in self.goal_modes:
+            raise ValueError(f"--goal {goal!r}: task {self.name} supports {', '.join(self.goal_modes)}")
