@@ -142,7 +142,7 @@ help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM=long)"
 	@echo "make test              run the test suite"
-	@echo "make bench             run the benchmarks and append their figures to README.md"
+	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
 
 venv: $(STAMP)
@@ -158,7 +158,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/run_all.py --readme README.md
+	$(BIN)/python -m benchmarks.run_all --doc docs/benchmarks.md
 
 check-sim: $(STAMP)
 	$(BIN)/gpc check-sim

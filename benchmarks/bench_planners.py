@@ -18,15 +18,14 @@ from benchmarks.bench_policy import _policy
 from benchmarks.common import median_seconds, publish
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.harness.recipes import RewardSpec, build_reward
-from gpc.models.policy.controller import SamplingConfig
 from gpc.models.planning.config import PlannerConfig
 from gpc.models.planning.planner import Planner
+from gpc.models.policy.controller import SamplingConfig
+from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import STATE_KEY
-from gpc.models.world_models.config import world_model_profile
-from gpc.tasks.pusht import SimulatorModel, observe
+from gpc.tasks.pusht import LAYOUT, SimulatorModel, observe
 from gpc.tasks.pusht.env import PushTEnv
-from gpc.tasks.pusht import LAYOUT
 
 SETTINGS = [  # (label, planner config fields, world model: learned | gt-sim, target)
     ("rank K=100", dict(kind="rank", num_proposals=100), "learned", "<= 0.25 s"),
@@ -49,7 +48,7 @@ def _world_model() -> WorldModelModule:
     return WorldModelModule(config, normalizer).eval()
 
 
-def run(readme: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None) -> None:
+def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None) -> None:
     from gpc.models.policy.module import PolicyModule
 
     torch.manual_seed(0)
@@ -82,13 +81,13 @@ def run(readme: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None
     load = os.getloadavg()[0]
     header = ["planner", "policy sampling", "s/decision (median)", "time share", "target", "threads, load"]
     rows = [r + [f"{torch.get_num_threads()}, {load:.1f}"] for r in rows]
-    publish(f"Planners, one history, {torch.get_num_threads()} threads (load {load:.1f})", "planners", header, rows, readme)
+    publish(f"Planners, one history, {torch.get_num_threads()} threads (load {load:.1f})", "planners", header, rows, doc, key=2)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--doc", type=Path, default=None)
     parser.add_argument("--policy", default=None, help="A policy checkpoint (default: an untrained cpu-profile network).")
     parser.add_argument("--world-model", default=None, help="A state world-model checkpoint.")
     args = parser.parse_args()
-    run(args.readme, args.policy, args.world_model)
+    run(args.doc, args.policy, args.world_model)

@@ -16,8 +16,8 @@ import torch
 from benchmarks.common import median_seconds, publish
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import IMAGE_KEYS
-from gpc.models.policy.module import PolicyModule
 from gpc.models.policy.config import policy_profile
+from gpc.models.policy.module import PolicyModule
 from gpc.tasks.pusht import LAYOUT
 
 SHAPES = {"state": (5,), "keypoint": (9, 2), "img": (96, 96, 3)}
@@ -72,19 +72,19 @@ def sample_rows(policy: PolicyModule, label: str) -> list[list[str]]:
     return rows
 
 
-def run(readme: Path | None, checkpoint: str | None = None, obs: str = "keypoints") -> None:
+def run(doc: Path | None, checkpoint: str | None = None, obs: str = "keypoints") -> None:
     torch.manual_seed(0)
     rows = train_rows(["tiny", "cpu", "paper"], obs)
     policy = PolicyModule.load_from_checkpoint(checkpoint) if checkpoint else _policy("cpu", obs)
     rows += sample_rows(policy, f"{obs} cpu profile" if not checkpoint else Path(checkpoint).name)
     header = ["work", "setting", "throughput", "latency (median)", "target"]
-    publish(f"Diffusion Policy ({obs} obs), {torch.get_num_threads()} threads", "policy", header, rows, readme)
+    publish(f"Diffusion Policy ({obs} obs), {torch.get_num_threads()} threads", "policy", header, rows, doc, key=2)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--doc", type=Path, default=None)
     parser.add_argument("--checkpoint", default=None)
     parser.add_argument("--obs", choices=["state", "keypoints", "image"], default="keypoints")
     args = parser.parse_args()
-    run(args.readme, args.checkpoint, args.obs)
+    run(args.doc, args.checkpoint, args.obs)

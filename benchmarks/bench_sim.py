@@ -13,23 +13,23 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import median_seconds, publish
-from gpc.tasks.pusht.record import RecordConfig, record_episode
 from gpc.tasks.pusht.env import PushTEnv
+from gpc.tasks.pusht.record import RecordConfig, record_episode
 
 
-def run(readme: Path | None) -> list[list[str]]:
+def run(doc: Path | None) -> list[list[str]]:
     """The targets are per core: pin this process to one core while timing."""
     cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     if cores:
         os.sched_setaffinity(0, {min(cores)})
     try:
-        return _run(readme)
+        return _run(doc)
     finally:
         if cores:
             os.sched_setaffinity(0, cores)
 
 
-def _run(readme: Path | None) -> list[list[str]]:
+def _run(doc: Path | None) -> list[list[str]]:
     env = PushTEnv(obs_type="state")
     env.reset(seed=100000)
     rng = np.random.default_rng(0)
@@ -70,11 +70,11 @@ def _run(readme: Path | None) -> list[list[str]]:
         ["explore episode (with images)", f"{np.median(explore):.2f} s median", f"{max(explore):.2f} s max", ""],
     ]
     header = ["work", "throughput", "latency (median)", "target"]
-    publish("Push-T simulator, one core", "sim", header, rows, readme)
+    publish("Push-T simulator, one core", "sim", header, rows, doc, key=1)
     return rows
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None, help="append the figures to this README")
-    run(parser.parse_args().readme)
+    parser.add_argument("--doc", type=Path, default=None, help="write the latest figures to this doc (docs/benchmarks.md)")
+    run(parser.parse_args().doc)

@@ -54,16 +54,16 @@ def decision_row(k: int, decisions: int) -> list[str]:
             f"{statistics.median(wall) * 1e3:,.1f} ms", f"{statistics.median(query) * 1e3:,.1f} ms"]
 
 
-def run(readme: Path | None, decisions: int = 15) -> None:
+def run(doc: Path | None, decisions: int = 15) -> None:
     rows = [decision_row(k, decisions) for k in (4, 16, 100)]
     header = ["K", "image", "request", "queries/decision", "prompt tokens", "completion tokens",
               "decision (median)", "of which HTTP query (median)"]
-    publish(f"VLM reward per decision, loopback server, {decisions} decisions each", "vlm", header, rows, readme)
+    publish(f"VLM reward per decision, loopback server, {decisions} decisions each", "vlm", header, rows, doc, key=1)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--doc", type=Path, default=None)
     parser.add_argument("--decisions", type=int, default=15)
     args = parser.parse_args()
-    run(args.readme, args.decisions)
+    run(args.doc, args.decisions)

@@ -18,19 +18,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import append_rows, median_seconds, show
+from benchmarks.common import median_seconds, show, write_rows
 from gpc.datasets.normalizer import MinMaxNormalizer
-from gpc.models.rewards.registration import PoseReward, RegistrationReward
 from gpc.models.rewards.learned import IMAGE_KEY, ImageReward, PosePredictor, reward_profile
+from gpc.models.rewards.registration import PoseReward, RegistrationReward
+from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import ACTION_KEY, DELTA_KEY, STATE_KEY
-from gpc.models.world_models.config import world_model_profile
-from gpc.tasks import get_task
 from gpc.tasks.pusht import LAYOUT
 
 KS = (1, 16, 100)
 T = 16
-TASK = get_task("pusht")
 STATE_HIGH = np.array([512.0, 512.0, 512.0, 512.0, 2 * math.pi])  # agent x, y, block x, y, angle
 
 
@@ -47,11 +45,10 @@ def _model(obs: str, checkpoint: str | None, profile: str = "cpu") -> WorldModel
 
 
 def _reward(obs: str, checkpoint: str | None, profile: str) -> PoseReward:
-    vertices, goal = torch.as_tensor(TASK.REWARD_VERTICES), torch.as_tensor(TASK.DEFAULT_GOAL)
     if obs == "state":
-        return RegistrationReward(vertices, goal, LAYOUT.state.object_pose)
+        return RegistrationReward.from_layout(LAYOUT)
     if checkpoint:
-        return ImageReward.from_checkpoint(checkpoint, goal)
+        return ImageReward.from_checkpoint(checkpoint, LAYOUT.target.goal)
     config = reward_profile(profile, LAYOUT).config
     norm = MinMaxNormalizer()
     norm.add(IMAGE_KEY, np.zeros(3), np.full(3, 255.0))
@@ -103,7 +100,7 @@ def rows_for(obs: str, checkpoint: str | None, profile: str = "cpu", ks: tuple[i
     return rows
 
 
-def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None,
+def run(doc: Path | None, state_checkpoint: str | None = None, image_checkpoint: str | None = None,
         kinds: tuple[str, ...] = ("state", "image"), profile: str = "cpu", ks: tuple[int, ...] = KS,
         reward_checkpoint: str | None = None) -> None:
     checkpoints = {"state": state_checkpoint, "image": image_checkpoint}
@@ -111,16 +108,18 @@ def run(readme: Path | None, state_checkpoint: str | None = None, image_checkpoi
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     header = ["model", "setting", "rollout (median)", "grad step: model + reward (median)", "target"]
     show(f"World model rollouts, {torch.get_num_threads()} threads (load {load:.1f})", header, rows)
-    if readme:
-        append_rows(readme, "world_model", header + ["threads, load"], [r + [f"{torch.get_num_threads()}, {load:.1f}"] for r in rows])
+    if doc:
+        write_rows(doc, "world_model", header + ["threads, load"], [r + [f"{torch.get_num_threads()}, {load:.1f}"] for r in rows], 2)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--doc", type=Path, default=None)
     parser.add_argument("--state-checkpoint", default=None)
     parser.add_argument("--image-checkpoint", default=None)
-    parser.add_argument("--reward-checkpoint", default=None, help="a `gpc train reward` checkpoint to score the visual model's frames (the state model uses the registration reward)")
+    parser.add_argument("--reward-checkpoint", default=None,
+                        help="a `gpc train reward` checkpoint to score the visual model's frames "
+                             "(the state model uses the registration reward)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--profile", choices=("cpu", "paper"), default="cpu", help="visual model profile (untrained)")
     parser.add_argument("--ks", default=",".join(map(str, KS)), help="proposal counts, comma-separated")
@@ -128,6 +127,6 @@ if __name__ == "__main__":
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    run(args.readme, args.state_checkpoint, args.image_checkpoint,
+    run(args.doc, args.state_checkpoint, args.image_checkpoint,
         ("state", "image") if args.obs == "both" else (args.obs,), args.profile, tuple(int(k) for k in args.ks.split(",")),
         args.reward_checkpoint)

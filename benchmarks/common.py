@@ -1,14 +1,13 @@
-"""Timing and reporting shared by the benchmarks: medians of repeats, tables, README rows."""
+"""Timing and reporting shared by the benchmarks: medians of repeats, tables, the latest rows in docs/benchmarks.md."""
 
 from __future__ import annotations
 
 import platform
-import re
 import statistics
 import time
+from collections.abc import Callable
 from datetime import date
 from pathlib import Path
-from typing import Callable
 
 from rich.console import Console
 from rich.table import Table
@@ -39,24 +38,31 @@ def show(title: str, header: list[str], rows: list[list[str]]) -> None:
     Console().print(table)
 
 
-def append_rows(readme: Path, name: str, header: list[str], rows: list[list[str]]) -> None:
-    """Append rows (dated) to the benchmark's table in the README, creating it if absent."""
+def write_rows(doc: Path, name: str, header: list[str], rows: list[list[str]], key: int) -> None:
+    """Put rows (dated) in the benchmark's table in ``doc`` (between the ``bench:NAME`` markers): a row replaces the
+    earlier row of the same setting (its first ``key`` columns), so the table holds each setting's latest figures."""
     begin, end = f"<!-- bench:{name}:begin -->", f"<!-- bench:{name}:end -->"
-    text = readme.read_text() if readme.exists() else ""
-    stamped = [[date.today().isoformat(), machine(), *r] for r in rows]
-    lines = ["| " + " | ".join(r) + " |" for r in stamped]
-    if begin not in text:
-        head = ["date", "machine", *header]
-        block = "\n".join([begin, "| " + " | ".join(head) + " |", "|" + "---|" * len(head), *lines, end])
-        marker = "<!-- bench:insert -->"
-        text = text.replace(marker, f"{block}\n\n{marker}") if marker in text else f"{text.rstrip()}\n\n{block}\n"
+    text = doc.read_text() if doc.exists() else "# Benchmarks\n"
+    head = ["date", "machine", *header]
+    new = {tuple(r[:key]): [date.today().isoformat(), machine(), *r] for r in rows}
+    kept: list[list[str]] = []
+    if begin in text:
+        old = text[text.index(begin) + len(begin) : text.index(end)].strip().splitlines()[2:]
+        for line in old:
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if tuple(cells[2 : 2 + key]) not in new:
+                kept.append(cells)
+    table = "\n".join([begin, "| " + " | ".join(head) + " |", "|" + "---|" * len(head),
+                        *["| " + " | ".join(r) + " |" for r in kept + list(new.values())], end])
+    if begin in text:
+        text = text[: text.index(begin)] + table + text[text.index(end) + len(end) :]
     else:
-        text = re.sub(re.escape(end), lambda _: "\n".join(lines) + "\n" + end, text, count=1)
-    readme.write_text(text)
+        text = f"{text.rstrip()}\n\n## {name}\n\n{table}\n"
+    doc.write_text(text)
 
 
-def publish(title: str, name: str, header: list[str], rows: list[list[str]], readme: Path | None) -> None:
-    """Print the table and, given a README, append its rows there (between the ``bench:NAME`` markers)."""
+def publish(title: str, name: str, header: list[str], rows: list[list[str]], doc: Path | None, key: int = 2) -> None:
+    """Print the table and, given a doc, write its rows there (``write_rows``)."""
     show(title, header, rows)
-    if readme:
-        append_rows(readme, name, header, rows)
+    if doc:
+        write_rows(doc, name, header, rows, key)

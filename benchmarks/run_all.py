@@ -1,4 +1,4 @@
-"""`make bench`: every benchmark, figures printed and appended to the README."""
+"""`make bench`: every benchmark, figures printed and the latest written to docs/benchmarks.md."""
 
 from __future__ import annotations
 
@@ -12,16 +12,16 @@ from benchmarks import bench_planners, bench_policy, bench_sim, bench_vlm, bench
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--readme", type=Path, default=None)
+    parser.add_argument("--doc", type=Path, default=None)
     parser.add_argument("--only", choices=["sim", "policy", "vlm", "world-model", "planners"], default=None)
     args = parser.parse_args()
     if args.only in (None, "sim"):
-        bench_sim.run(args.readme)
+        bench_sim.run(args.doc)
     if args.only in (None, "policy"):
-        bench_policy.run(args.readme)
+        bench_policy.run(args.doc)
     if args.only in (None, "vlm"):
-        bench_vlm.run(args.readme)
+        bench_vlm.run(args.doc)
     if args.only in (None, "world-model"):
-        bench_world_model.run(args.readme)
+        bench_world_model.run(args.doc)
     if args.only in (None, "planners"):
-        bench_planners.run(args.readme)
+        bench_planners.run(args.doc)

@@ -92,7 +92,7 @@ def estimate_prompt_tokens(request: Received) -> int:
 
 
 class _Handler(BaseHTTPRequestHandler):
-    server: "_Server"
+    server: _Server
 
     def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
         raw = self.rfile.read(int(self.headers.get("Content-Length", 0)))
@@ -134,7 +134,7 @@ class _Handler(BaseHTTPRequestHandler):
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     block_on_close = False  # a slow scripted reply must not hold up shutdown
-    owner: "ScriptedChatServer"
+    owner: ScriptedChatServer
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         pass  # a client that hung up mid-reply is expected here
@@ -164,7 +164,7 @@ class ScriptedChatServer:
         host, port = self._server.server_address[:2]
         return f"http://{host}:{port}/v1"
 
-    def __enter__(self) -> "ScriptedChatServer":
+    def __enter__(self) -> ScriptedChatServer:
         self._server = _Server(("127.0.0.1", 0), _Handler)
         self._server.owner = self
         threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()

@@ -22,7 +22,7 @@ class MinMaxNormalizer(nn.Module):
         self.offsets = nn.ParameterDict()
 
     @classmethod
-    def fit(cls, data: dict[str, np.ndarray], image_keys: tuple[str, ...] = ()) -> "MinMaxNormalizer":
+    def fit(cls, data: dict[str, np.ndarray], image_keys: tuple[str, ...] = ()) -> MinMaxNormalizer:
         norm = cls()
         for key, value in data.items():
             if key in image_keys:

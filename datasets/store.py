@@ -15,8 +15,9 @@ append that never landed, and is dropped the same way.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numcodecs
 import numpy as np
@@ -43,7 +44,7 @@ class EpisodeStore:
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def open(cls, path: str | Path, writable: bool = False) -> "EpisodeStore":
+    def open(cls, path: str | Path, writable: bool = False) -> EpisodeStore:
         """Open an existing store; a half-written last episode is dropped when writable."""
         path = Path(path)
         if not path.exists():
@@ -60,7 +61,7 @@ class EpisodeStore:
         return store
 
     @classmethod
-    def create(cls, path: str | Path, attrs: dict[str, Any], overwrite: bool = False) -> "EpisodeStore":
+    def create(cls, path: str | Path, attrs: dict[str, Any], overwrite: bool = False) -> EpisodeStore:
         """A new empty store carrying ``attrs`` (provenance); refuses to replace data unless told."""
         path = Path(path)
         if path.exists():

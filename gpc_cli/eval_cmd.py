@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, List, Optional
+from typing import Annotated
 
 import typer
 
@@ -17,18 +17,18 @@ eval_app = typer.Typer(
 
 Checkpoint = Annotated[Path, typer.Argument(help="Policy checkpoint (its config and normalizer are inside).")]
 PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alone), rank, opt, rank-opt, gt-sim, cem, mppi or grad.")]
-WorldModel = Annotated[Optional[str], typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
-K = Annotated[Optional[int], typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
-M = Annotated[Optional[int], typer.Option("--M", "-M", help="Gradient steps (opt, rank-opt, grad) or iterations (cem, mppi); default 30 (cem, mppi: 5).")]
+WorldModel = Annotated[str | None, typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
+K = Annotated[int | None, typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
+M = Annotated[int | None, typer.Option("--M", "-M", help="Gradient steps (opt, rank-opt, grad) or iterations (cem, mppi); default 30 (cem, mppi: 5).")]
 Lr = Annotated[float, typer.Option("--lr", help="Adam step size on the actions (px).")]
 Reward = Annotated[str, typer.Option("--reward", help="registration (state futures), learned (image futures) or vlm.")]
 RewardAggregate = Annotated[str, typer.Option("--reward-aggregate", help="final: the last predicted step; discounted: a discounted sum.")]
-RewardCkpt = Annotated[Optional[str], typer.Option("--reward-checkpoint", help="--reward learned: the reward checkpoint.")]
-VlmUrl = Annotated[Optional[str], typer.Option("--vlm-base-url", help="--reward vlm: an OpenAI-compatible endpoint, e.g. http://localhost:8000/v1.")]
-VlmModel = Annotated[Optional[str], typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
-Method = Annotated[Optional[str], typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
-Steps = Annotated[Optional[int], typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
-Spacing = Annotated[Optional[str], typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
+RewardCkpt = Annotated[str | None, typer.Option("--reward-checkpoint", help="--reward learned: the reward checkpoint.")]
+VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm: an OpenAI-compatible endpoint, e.g. http://localhost:8000/v1.")]
+VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
+Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
+Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
 MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
 Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
@@ -44,7 +44,7 @@ with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
 
 def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: str, keep_futures: bool = False,
-                        vlm_cache: Optional[Path] = None):
+                        vlm_cache: Path | None = None):
     """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``)."""
     from gpc.harness.recipes import RewardSpec, make_recipe
     from gpc.models.policy.controller import SamplingConfig
@@ -132,12 +132,12 @@ def plan_one(
 
 
 def compare(
-    runs: List[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds); A+B joins one controller's runs on two seed ranges."),
+    runs: list[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds); A+B joins one controller's runs on two seed ranges."),
     baseline: Path = typer.Option(..., "--baseline", help="The BC result directory the others are paired with."),
-    ceiling: Optional[Path] = typer.Option(None, "--ceiling", help="The gt-sim result: report the share of the BC-to-ceiling gap closed."),
+    ceiling: Path | None = typer.Option(None, "--ceiling", help="The gt-sim result: report the share of the BC-to-ceiling gap closed."),
     out: Path = typer.Option(Path("results/compare.md"), "--out", "-o", help="Markdown table to write (and .json beside it)."),
     title: str = typer.Option("Planners against BC (paired over seeds)", "--title"),
-    paper: Optional[str] = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
+    paper: str | None = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
 ) -> None:
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
     from gpc.harness.comparison import compare_runs, plot_comparison, write_comparison

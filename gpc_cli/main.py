@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
 from gpc.cli.errors import OneLineErrors
-from gpc.cli.eval_cmd import eval_app, register as register_eval
-from gpc.cli.reward import evaluate as eval_reward, train as train_reward
+from gpc.cli.eval_cmd import eval_app
+from gpc.cli.eval_cmd import register as register_eval
+from gpc.cli.reward import evaluate as eval_reward
+from gpc.cli.reward import train as train_reward
 from gpc.cli.train import train_app
-from gpc.cli.world_model import evaluate as eval_world_model, train as train_world_model
+from gpc.cli.world_model import evaluate as eval_world_model
+from gpc.cli.world_model import train as train_world_model
 from gpc.tasks import DEFAULT_TASK, get_task
 
 app = typer.Typer(
@@ -45,7 +47,8 @@ def collect(
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from gpc.harness.collection import CollectJob, collect as run_collect
+    from gpc.harness.collection import CollectJob
+    from gpc.harness.collection import collect as run_collect
 
     job = CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes,
                      seed=seed, workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite)
@@ -85,7 +88,7 @@ def data_info(
 def data_video(
     path: Path = typer.Argument(..., help="Zarr episode store."),
     episode: int = typer.Option(0, "--episode", "-e", help="Episode index (negative counts from the end)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="MP4 to write (default: <store>_ep<i>.mp4)."),
+    out: Path | None = typer.Option(None, "--out", "-o", help="MP4 to write (default: <store>_ep<i>.mp4)."),
 ) -> None:
     """Write one episode as an MP4."""
     from gpc.harness.stores import episode_video
@@ -99,7 +102,7 @@ def check_sim(
     data: Path = typer.Option(Path("../shared/data/pusht_human_train.zarr"), "--data", help="Recorded Push-T store (Diffusion Policy layout)."),
     episodes: int = typer.Option(0, "--episodes", min=0, help="Check only the first N episodes (0: all)."),
     frame_stride: int = typer.Option(10, "--frame-stride", min=1, help="Compare every k-th recorded frame."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Also write the figures as JSON here."),
+    out: Path | None = typer.Option(None, "--out", help="Also write the figures as JSON here."),
     task: str = typer.Option(DEFAULT_TASK, "--task", help="Task whose simulator replays the store."),
 ) -> None:
     """Replay recorded actions and re-render recorded states; print how closely they match."""
@@ -119,7 +122,7 @@ def check_sim(
 def eval_expert(
     seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),
     goal: str = typer.Option("fixed", "--goal", help="fixed or random goal."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Write per-seed JSON and a Markdown summary to this directory."),
+    out: Path | None = typer.Option(None, "--out", help="Write per-seed JSON and a Markdown summary to this directory."),
     task: str = typer.Option(DEFAULT_TASK, "--task", help="Task whose expert to score."),
 ) -> None:
     """Score the scripted expert in closed loop (the task's episode length, max reward per episode)."""

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -29,13 +28,12 @@ def train(
     out: Out,
     task: Task = DEFAULT_TASK,
     profile: str = typer.Option("cpu", "--profile", help="cpu (ResNet18 width 32, 64 px), paper (full ResNet18, 96 px), tiny (tests)."),
-    image_size: Optional[int] = typer.Option(None, "--image-size", min=8, help="Frame size the network reads (default: the profile's); match the world model's frames."),
-    lr: Optional[float] = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's)."),
+    image_size: int | None = typer.Option(None, "--image-size", min=8, help="Frame size the network reads (default: the profile's); match the world model's frames."),
+    lr: float | None = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's)."),
     options: dict | None = None,
 ) -> None:
     """Train the image reward's pose predictor on the frames of Zarr stores, labelled by their recorded states."""
-    from gpc.models.rewards.learned import reward_profile
-    from gpc.models.rewards.learned import RewardPredictorModule
+    from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
     from gpc.models.training import trainer
 
     chosen = reward_profile(profile, get_task(task).layout)
@@ -51,13 +49,13 @@ def train(
 @reward_app.command("eval")
 def evaluate(
     checkpoint: Path = typer.Argument(..., help="Reward checkpoint (its config and normaliser are inside)."),
-    dataset: List[Path] = typer.Option(..., "--dataset", "-d", help="Zarr episode store(s); with --split val, the stores it was trained on, in the same order."),
+    dataset: list[Path] = typer.Option(..., "--dataset", "-d", help="Zarr episode store(s); with --split val, the stores it was trained on, in the same order."),
     split: str = typer.Option("val", "--split", help="val: the held-out episodes of the training split; all: every episode."),
-    ood: List[Path] = typer.Option([], "--ood", help="Also evaluate every episode of this store, never trained on (e.g. the human data); repeatable."),
-    episodes: Optional[int] = typer.Option(None, "--episodes", "-n", min=1, help="Only the first N episodes of each evaluated set."),
+    ood: list[Path] = typer.Option([], "--ood", help="Also evaluate every episode of this store, never trained on (e.g. the human data); repeatable."),
+    episodes: int | None = typer.Option(None, "--episodes", "-n", min=1, help="Only the first N episodes of each evaluated set."),
     stride: int = typer.Option(1, "--stride", min=1, help="Every k-th frame of each episode."),
-    image_size: Optional[int] = typer.Option(None, "--image-size", min=8, help="Downscale frames to this size first (as a world model would produce them)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Directory for reward_eval.json and .md (default: the run's eval/)."),
+    image_size: int | None = typer.Option(None, "--image-size", min=8, help="Downscale frames to this size first (as a world model would produce them)."),
+    out: Path | None = typer.Option(None, "--out", "-o", help="Directory for reward_eval.json and .md (default: the run's eval/)."),
 ) -> None:
     """Predicted vs true registration loss (px) and pose errors on held-out frames (and out-of-distribution stores)."""
     from gpc.harness.model_eval import evaluate_reward

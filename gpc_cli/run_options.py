@@ -5,14 +5,15 @@ from __future__ import annotations
 import functools
 import inspect
 import typing
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Callable, List, Optional
+from typing import Annotated, Any
 
 import typer
 
 from gpc.tasks import task_names
 
-Datasets = Annotated[List[Path], typer.Option("--dataset", "-d", help="Zarr episode store; repeat to train on several.")]
+Datasets = Annotated[list[Path], typer.Option("--dataset", "-d", help="Zarr episode store; repeat to train on several.")]
 Out = Annotated[Path, typer.Option("--out", "-o", help="Run directory (checkpoints/, tensorboard/, run.json).")]
 
 
@@ -23,9 +24,9 @@ def _known_task(name: str) -> str:
 
 
 Task = Annotated[str, typer.Option("--task", help="Task the data comes from.", callback=_known_task)]
-MaxSteps = Annotated[Optional[int], typer.Option("--max-steps", min=1, help="Total optimiser steps (default: the profile's).")]
-MaxEpochs = Annotated[Optional[int], typer.Option("--max-epochs", min=1, help="Passes over the training windows.")]
-BatchSize = Annotated[Optional[int], typer.Option("--batch-size", min=1, help="Windows per step and device (default: the profile's).")]
+MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, help="Total optimiser steps (default: the profile's).")]
+MaxEpochs = Annotated[int | None, typer.Option("--max-epochs", min=1, help="Passes over the training windows.")]
+BatchSize = Annotated[int | None, typer.Option("--batch-size", min=1, help="Windows per step and device (default: the profile's).")]
 Accelerator = Annotated[str, typer.Option("--accelerator", help="Lightning accelerator: cpu, gpu, auto.")]
 Devices = Annotated[str, typer.Option("--devices", help="Devices per node: a number or auto.")]
 Strategy = Annotated[str, typer.Option("--strategy", help="Lightning strategy, e.g. ddp (gloo on CPU).")]
@@ -34,7 +35,7 @@ Precision = Annotated[str, typer.Option("--precision", help="32-true, bf16-mixed
 Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed for weights, shuffling, noise and the validation split.")]
 Resume = Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its last checkpoint.")]
 CheckpointEvery = Annotated[int, typer.Option("--checkpoint-every", min=1, help="Steps between refreshes of last.ckpt.")]
-ValEvery = Annotated[Optional[int], typer.Option("--val-every", min=1, help="Steps between validations (default: each epoch).")]
+ValEvery = Annotated[int | None, typer.Option("--val-every", min=1, help="Steps between validations (default: each epoch).")]
 NumWorkers = Annotated[int, typer.Option("--num-workers", min=0, help="DataLoader worker processes.")]
 Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Show the progress bar.")]
 

@@ -10,8 +10,9 @@ only; ``tests/toy_task.py`` defines a second task with it and runs every planner
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 

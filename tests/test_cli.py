@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from gpc.datasets.store import EpisodeStore
 from gpc.cli.main import app
+from gpc.datasets.store import EpisodeStore
 
 runner = CliRunner()
 

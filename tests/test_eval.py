@@ -11,18 +11,17 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gpc.cli.main import app
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import EvalConfig, episode_generator, evaluate, run_group, write_results
-from gpc.cli.main import app
-from gpc.models.policy.controller import PolicyControllerFactory
-from gpc.models.policy.config import policy_profile
 from gpc.models.planning.protocols import Controller, Plan
-from gpc.models.training.config import RunConfig
+from gpc.models.policy.config import policy_profile
+from gpc.models.policy.controller import PolicyControllerFactory
 from gpc.models.policy.module import PolicyModule
+from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
-from gpc.tasks.pusht import geometry
+from gpc.tasks.pusht import LAYOUT, geometry
 from gpc.tasks.pusht.env import PushTEnv
-from gpc.tasks.pusht import LAYOUT
 
 SEEDS = (100000, 100001, 100002, 100003)
 
@@ -34,7 +33,7 @@ class HoldStill:
     obs_keys: tuple[str, ...] = ("state",)
     n_obs_steps: int = 2
 
-    def __call__(self) -> "HoldStill":
+    def __call__(self) -> HoldStill:
         return self
 
     def plan(self, obs, generators) -> Plan:

@@ -10,28 +10,27 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gpc.cli.main import app
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.comparison import paired_interval, t_quantile
 from gpc.harness.evaluation import episode_generator
-from gpc.cli.main import app
 from gpc.harness.recipes import PlannerRecipe, RewardSpec, build_reward
-from gpc.models.policy.controller import PolicyController
 from gpc.models.planning.config import PLANNERS, PlannerConfig
 from gpc.models.planning.loading import load_planner
 from gpc.models.planning.objective import Objective, PartTimer
 from gpc.models.planning.planner import Planner
-from gpc.models.policy.module import PolicyModule
 from gpc.models.policy.config import policy_profile
+from gpc.models.policy.controller import PolicyController
+from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.registration import RegistrationReward
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
-from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.config import world_model_profile
+from gpc.models.world_models.module import WorldModelModule
 from gpc.tasks import get_task
-from gpc.tasks.pusht import SimulatorModel
-from gpc.tasks.pusht.record import observe
+from gpc.tasks.pusht import LAYOUT, SimulatorModel
 from gpc.tasks.pusht.env import PushTEnv
-from gpc.tasks.pusht import LAYOUT
+from gpc.tasks.pusht.record import observe
 
 PUSHT = get_task("pusht")
 
@@ -275,12 +274,12 @@ def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
 
 def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
     """Image policy + visual world model + learned image reward, end to end through `gpc eval`."""
-    from gpc.models.rewards.learned import reward_profile
-    from gpc.models.rewards.learned import RewardPredictorModule
+    from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
 
     collect(CollectJob(task="pusht", out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
     data, run = [tmp_path / "img.zarr"], dict(batch_size=8, progress=False, accelerator="cpu")
-    policy = train(PolicyModule, policy_profile("tiny", "image", LAYOUT).config, data, RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
+    policy = train(PolicyModule, policy_profile("tiny", "image", LAYOUT).config, data,
+                   RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
     wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT, obs="image").config, data,
                            RunConfig(run_dir=tmp_path / "w", max_steps=3, **run))
     reward_config = reward_profile("tiny", LAYOUT).config

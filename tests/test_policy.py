@@ -13,14 +13,14 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gpc.cli.train import train_app
 from gpc.datasets.datamodule import EpisodeDataModule
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
-from gpc.cli.train import train_app
+from gpc.models.planning.protocols import ActionProposer
+from gpc.models.policy.config import policy_profile
 from gpc.models.policy.denoiser import ActionDenoiser
 from gpc.models.policy.module import PolicyModule
-from gpc.models.policy.config import policy_profile
-from gpc.models.planning.protocols import ActionProposer
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import TrainingDiverged, train
 from gpc.tasks.pusht import LAYOUT
@@ -76,7 +76,8 @@ def _history(store: Path, episode: int = 0, step: int = 5) -> dict[str, np.ndarr
 
 
 def test_loss_decreases_over_fifty_steps(trained, store):
-    data = EpisodeDataModule(PolicyModule.data_config(trained.module.config, (str(store),), run(Path("/unused"), "x", batch_size=64), (0, 0.05)))
+    windows = PolicyModule.data_config(trained.module.config, (str(store),), run(Path("/unused"), "x", batch_size=64), (0, 0.05))
+    data = EpisodeDataModule(windows)
     batch = next(iter(data.train_dataloader()))
     fresh = PolicyModule(trained.module.config, normalizer=data.normalizer)
 

@@ -7,14 +7,14 @@ import math
 import pytest
 import torch
 
-from gpc.models.training.config_io import from_plain
 from gpc.models.networks.ddpm import DiffusionSampler, NoiseConfig, NoiseSchedule, SamplerConfig, squaredcos_betas
-from gpc.models.training.ema import EMAConfig, EMAWeights
 from gpc.models.networks.encoders import EncoderConfig, ObsEncoder, crop_images
-from gpc.models.training.optim import cosine_with_warmup
-from gpc.models.policy.config import PolicyConfig, policy_profile
 from gpc.models.networks.resnet import ResNet18Trunk, SpatialSoftmax
 from gpc.models.networks.unet1d import ConditionalUnet1D, UNetConfig
+from gpc.models.policy.config import PolicyConfig, policy_profile
+from gpc.models.training.config_io import from_plain
+from gpc.models.training.ema import EMAConfig, EMAWeights
+from gpc.models.training.optim import cosine_with_warmup
 from gpc.tasks.pusht import LAYOUT
 
 SCHEDULE = NoiseSchedule(NoiseConfig())

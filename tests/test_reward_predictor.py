@@ -12,19 +12,23 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gpc.cli.reward import reward_app
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
-from gpc.cli.reward import reward_app
-from gpc.models.rewards.registration import RegistrationReward, Reward, RewardConfig
 from gpc.models.rewards.learned import (
-    ImageReward, RewardPredictorConfig, RewardPredictorModule, random_blur, random_shift, reward_profile,
+    ImageReward,
+    RewardPredictorConfig,
+    RewardPredictorModule,
+    random_blur,
+    random_shift,
+    reward_profile,
 )
 from gpc.models.rewards.learned_eval import evaluate_reward_predictor
-from gpc.models.training.trainer import train
+from gpc.models.rewards.registration import RegistrationReward, Reward, RewardConfig
 from gpc.models.training.config import RunConfig
-from gpc.tasks.pusht import geometry
+from gpc.models.training.trainer import train
+from gpc.tasks.pusht import LAYOUT, geometry
 from gpc.tasks.pusht.render import draw_scene, draw_state
-from gpc.tasks.pusht import LAYOUT
 
 GOAL = torch.tensor(geometry.GOAL_POSE, dtype=torch.float32)
 

@@ -14,19 +14,19 @@ from typer.testing import CliRunner
 
 import gpc.models.training.trainer as wmt
 import gpc.models.world_models.module as wm_module
+from gpc.cli.main import app
+from gpc.cli.world_model import world_model_app
 from gpc.datasets.datamodule import EpisodeDataModule
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
-from gpc.cli.main import app
-from gpc.cli.world_model import world_model_app
-from gpc.models.training.checkpoint import checkpoint_meta
+from gpc.models.planning.protocols import WorldModel
 from gpc.models.rewards.registration import RegistrationReward
+from gpc.models.training.checkpoint import checkpoint_meta
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import TrainingDiverged, train
-from gpc.models.planning.protocols import WorldModel
-from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.config import WorldModelConfig, world_model_profile
 from gpc.models.world_models.eval_state import evaluate_rollouts
+from gpc.models.world_models.module import WorldModelModule
 from gpc.tasks.pusht import LAYOUT
 
 TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
@@ -311,8 +311,8 @@ def test_phase_one_trains_on_the_human_data(human_data, tmp_path):
 def test_object_frame_sees_a_moved_and_turned_scene_the_same():
     """The block-frame features do not change when the whole scene is shifted and rotated, and the
     predicted block displacement turns with the scene (the only frame-dependent part)."""
-    from gpc.models.world_models.state import StateDynamics, rotate
     from gpc.models.world_models.config import DynamicsConfig
+    from gpc.models.world_models.state import StateDynamics, rotate
 
     config = DynamicsConfig.for_layout(LAYOUT, "object", width=16, depth=1)
     model = StateDynamics(config)

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
+from gpc import __version__
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
-from gpc import __version__
 from gpc.tasks import get_task
 from gpc.tasks.base import COLLECTORS
 

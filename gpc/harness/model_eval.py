@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 from gpc.tasks import get_task
 
@@ -53,7 +53,10 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
 
         from gpc.models.networks.edm import NOISE_MODES
         from gpc.models.world_models.eval_visual import (
-            ColourReadout, LearnedPoseReadout, evaluate_visual_rollouts, visual_markdown_table,
+            ColourReadout,
+            LearnedPoseReadout,
+            evaluate_visual_rollouts,
+            visual_markdown_table,
         )
 
         if noise not in NOISE_MODES:

@@ -26,8 +26,8 @@ where ``x0_hat`` is clipped to ``[-clip, clip]``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 

@@ -7,8 +7,8 @@ candidate; it never calls the world model or the reward itself.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Iterator, Sequence
 
 import torch
 

@@ -13,15 +13,16 @@ world model predicts the state after each of them, and the reward scores those f
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-from gpc.models.policy.controller import SamplingConfig
 from gpc.models.planning.config import PlannerConfig
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.protocols import ActionProposer, Plan, Reward, WorldModel
+from gpc.models.policy.controller import SamplingConfig
 
 
 class Planner:

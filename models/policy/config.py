@@ -7,16 +7,16 @@ from the training data (``with_obs_shapes``) so a checkpoint alone can rebuild t
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 from gpc.datasets.layout import TaskLayout
-from gpc.models.training.config import OptimConfig, Profile
-from gpc.models.training.config_io import PlainConfig
 from gpc.models.networks.ddpm import NoiseConfig, SamplerConfig
-from gpc.models.training.ema import EMAConfig
 from gpc.models.networks.encoders import EncoderConfig
 from gpc.models.networks.unet1d import UNetConfig
+from gpc.models.training.config import OptimConfig, Profile
+from gpc.models.training.config_io import PlainConfig
+from gpc.models.training.ema import EMAConfig
 
 PROFILES = ("cpu", "paper", "tiny")
 
@@ -66,7 +66,7 @@ class PolicyConfig(PlainConfig):
     def obs_keys(self) -> tuple[str, ...]:
         return self.encoder.keys
 
-    def with_obs_shapes(self, shapes: Mapping[str, tuple[int, ...]]) -> "PolicyConfig":
+    def with_obs_shapes(self, shapes: Mapping[str, tuple[int, ...]]) -> PolicyConfig:
         """A copy whose encoder knows the step shape of each observation key it reads."""
         missing = [k for k in self.obs_keys if k not in shapes]
         if missing:

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 import torch
 
-from gpc.models.policy.module import PolicyModule
 from gpc.models.planning.protocols import Plan
+from gpc.models.policy.module import PolicyModule
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from torch import nn
 
 from gpc.models.networks.ddpm import NoiseSchedule
 from gpc.models.networks.encoders import ObsEncoder
-from gpc.models.policy.config import PolicyConfig
 from gpc.models.networks.unet1d import ConditionalUnet1D
+from gpc.models.policy.config import PolicyConfig
 
 
 class ActionDenoiser(nn.Module):

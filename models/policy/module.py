@@ -8,8 +8,9 @@ task, obs type). ``PolicyModule.load_from_checkpoint(path)`` alone rebuilds all 
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch

@@ -26,16 +26,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from gpc.datasets.datamodule import DataConfig
-from gpc.datasets.layout import TaskLayout
 from gpc.datasets.errors import DataError
+from gpc.datasets.layout import TaskLayout
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.resnet import ResNet18Trunk
@@ -89,7 +90,7 @@ class RewardPredictorConfig(PlainConfig):
         if self.shift_px < 0 or self.blur_sigma < 0 or not 0.0 <= self.blur_prob <= 1.0:
             raise ValueError("shift_px and blur_sigma must be >= 0 and blur_prob in [0, 1]")
 
-    def with_task(self, layout: TaskLayout) -> "RewardPredictorConfig":
+    def with_task(self, layout: TaskLayout) -> RewardPredictorConfig:
         """A copy that knows the task: its name, the object's pose entries, outline and default goal, the frame's span."""
         if not layout.state.has_angle or layout.frame is None:
             raise ValueError(f"the learned image reward reads an (x, y, angle) pose from frames; task {layout.name} "
@@ -243,7 +244,7 @@ class ImageReward(PoseReward):
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, goal: Any = None, config: RewardConfig = RewardConfig(),
-                        map_location: Any = "cpu", task: str | None = None) -> "ImageReward":
+                        map_location: Any = "cpu", task: str | None = None) -> ImageReward:
         """The frozen (no parameter gradients) reward of a ``gpc train reward`` checkpoint."""
         predictor = RewardPredictorModule.load_from_checkpoint(path, map_location=map_location, task=task).predictor
         return cls(predictor.requires_grad_(False).eval(), goal, config)

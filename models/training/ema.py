@@ -66,7 +66,7 @@ class EMAWeights(nn.Module):
         self.updates += 1
         return decay
 
-    def train(self, mode: bool = True) -> "EMAWeights":
+    def train(self, mode: bool = True) -> EMAWeights:
         """The averaged copy always stays in evaluation mode (centre crops, no dropout)."""
         super().train(mode)
         self.model.eval()

@@ -11,7 +11,8 @@ from the data) are the classmethods below; ``models.training.trainer.train`` cal
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import lightning as L
 import torch

@@ -36,16 +36,16 @@ A visual window (H = 2 frames, frameskip 2, T = 4 actions) reads every ``framesk
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-
-from typing import Any, Mapping
+from typing import Any
 
 from gpc.datasets.layout import TaskLayout
-from gpc.models.training.config import OptimConfig, Profile
-from gpc.models.training.config_io import PlainConfig
 from gpc.models.networks.edm import EDMConfig, EulerConfig
 from gpc.models.networks.mlp import ACTIVATIONS
 from gpc.models.networks.unet2d import UNet2DConfig
+from gpc.models.training.config import OptimConfig, Profile
+from gpc.models.training.config_io import PlainConfig
 
 KIND = "world_model"
 OBS_TYPES = ("state", "image")
@@ -72,7 +72,8 @@ class DynamicsConfig:
     depth: int = 4  # hidden layers
     activation: str = "silu"  # silu, gelu, mish or relu
     layer_norm: bool = False  # LayerNorm after each hidden Linear
-    object_frame: tuple[int, ...] = ()  # (x, y, angle) entries of a rigid object: contact features and its motion in its own frame; () for none
+    # (x, y, angle) entries of a rigid object: contact features and its motion in its own frame; () for none
+    object_frame: tuple[int, ...] = ()
     object_length: float = 1.0  # object-frame offsets are divided by this (state units: about the object's size)
 
     def __post_init__(self) -> None:
@@ -101,7 +102,7 @@ class DynamicsConfig:
                 raise ValueError(f"object_length {self.object_length}: must be > 0")
 
     @classmethod
-    def for_layout(cls, layout: TaskLayout, frame: str | None = None, **sizes: Any) -> "DynamicsConfig":
+    def for_layout(cls, layout: TaskLayout, frame: str | None = None, **sizes: Any) -> DynamicsConfig:
         """The task's state layout with the given network sizes; ``frame="object"`` (the default when the
         object has an angle) adds its object-frame features."""
         s = layout.state

@@ -17,20 +17,20 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
 from gpc.datasets.layout import TaskLayout
-
 from gpc.models.rewards.registration import registration_distance
-from gpc.models.world_models.visual import ACTION_KEY
-from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.config import IMAGE_KEY
 from gpc.models.world_models.eval_state import held_out_windows
+from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.visual import ACTION_KEY
 
 Colour = tuple[int, int, int]
 
@@ -269,7 +269,8 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; {report['resolution']} px, "
-        f"frameskip {report['frameskip']}, {report['noise']} noise, {report['sampler']['steps']} Euler steps. Each cell: model / nothing-moves baseline "
+        f"frameskip {report['frameskip']}, {report['noise']} noise, {report['sampler']['steps']} Euler steps. "
+        "Each cell: model / nothing-moves baseline "
         "(SSIM, PSNR: higher is better; pose errors: lower)."
         + (f" Object pose read by {'colour' if report['readout_config']['pose'] == 'colour' else 'the learned pose predictor'}."
            if ro else ""), "",
@@ -280,7 +281,8 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
                  f"{row['model']['psnr']:.1f} / {row['baseline']['psnr']:.1f}"]
         if ro:
             m, b = ro["per_step"]["model"], ro["per_step"]["baseline"]
-            cells += [f"{m[k][i]:.1f} / {b[k][i]:.1f}" for k in ("object_units", "object_deg") + (("object_vertex_units",) if vertex else ())]
+            keys = ("object_units", "object_deg") + (("object_vertex_units",) if vertex else ())
+            cells += [f"{m[k][i]:.1f} / {b[k][i]:.1f}" for k in keys]
             cells.append(f"{ro['agent_visible']['per_step'][i]:.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     if ro and ro["final_moving"]:

@@ -18,8 +18,9 @@ from __future__ import annotations
 import dataclasses
 import os
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import torch
@@ -32,7 +33,11 @@ from gpc.datasets.windows import EpisodeArrays
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
 from gpc.models.world_models.config import (
-    KIND, AnyWorldModelConfig, VisualWorldModelConfig, config_from_dict, with_network_of,
+    KIND,
+    AnyWorldModelConfig,
+    VisualWorldModelConfig,
+    config_from_dict,
+    with_network_of,
 )
 from gpc.models.world_models.state import ACTION_KEY, DELTA_KEY, STATE_KEY, StateDynamics, delta_statistics
 from gpc.models.world_models.visual import VisualDynamics

@@ -23,7 +23,7 @@ Inputs and outputs of the predictor (``D`` state entries, ``A`` action entries):
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 import torch

@@ -13,8 +13,8 @@ with short, slow pushes, since the last few percent need about a pixel of precis
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 

@@ -11,15 +11,26 @@ points of it in random directions; ``mixed`` draws one of the two per episode.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.expert import (
-    COG, HI, LO, R, PushTExpert, approach_paths, clearance, escape, follow, in_workspace, rotate,
-    sample_contacts, to_block,
+    COG,
+    HI,
+    LO,
+    PushTExpert,
+    R,
+    approach_paths,
+    clearance,
+    escape,
+    follow,
+    in_workspace,
+    rotate,
+    sample_contacts,
+    to_block,
 )
 from gpc.tasks.pusht.sim import PushTSim
 
