@@ -136,12 +136,13 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test bench reproduce-pusht reproduce-pusht-vision check-sim clean
+.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision check-sim clean
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM=long)"
-	@echo "make test              run the test suite"
+	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
+	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
 
@@ -154,8 +155,23 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
-test: $(STAMP)
-	$(BIN)/python -m pytest -q
+test: lint types
+	TORCH_SPEC="$(TORCH_SPEC)" $(BIN)/python -m pytest -q
+
+test-fast: lint
+	$(BIN)/python -m pytest -q -m "not slow"
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+# mypy reads the library as it installs (gpc.models, ...): a tree of links maps the user's folders to their package names.
+TYPES_TREE := build/typecheck/gpc
+types: $(STAMP)
+	rm -rf $(TYPES_TREE) && mkdir -p $(TYPES_TREE)
+	for f in gpc/*; do ln -s "$(CURDIR)/$$f" $(TYPES_TREE)/$$(basename $$f); done
+	ln -s "$(CURDIR)/gpc_cli" $(TYPES_TREE)/cli
+	for d in datasets models tasks; do ln -s "$(CURDIR)/$$d" $(TYPES_TREE)/$$d; done
+	cd build/typecheck && $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml -p gpc
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all --doc docs/benchmarks.md

@@ -18,9 +18,8 @@ from benchmarks.bench_policy import _policy
 from benchmarks.common import median_seconds, publish
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.harness.recipes import RewardSpec, build_reward
-from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.planner import Planner
-from gpc.models.policy.controller import SamplingConfig
 from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import STATE_KEY

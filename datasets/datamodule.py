@@ -76,7 +76,8 @@ class EpisodeDataModule(L.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         return self._loader(self.train_episodes, shuffle=True)
 
-    def val_dataloader(self) -> DataLoader:
+    def val_dataloader(self) -> DataLoader | list[DataLoader]:
+        """No validation episodes gives an empty list, which Lightning takes as "skip validation"."""
         if len(self.val_episodes) == 0:
             return []
         return self._loader(self.val_episodes, shuffle=False)

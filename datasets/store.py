@@ -14,10 +14,11 @@ append that never landed, and is dropped the same way.
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numcodecs
 import numpy as np
@@ -27,6 +28,16 @@ from gpc.datasets.errors import DataError
 
 FORMAT_VERSION = 1
 _CHUNK_BYTES = 4 << 20
+
+
+def _array(node: zarr.Array | zarr.Group) -> zarr.Array:
+    """An array node: zarr types every lookup as ``Array | Group``, our layout says which."""
+    return cast(zarr.Array, node)
+
+
+def _group(node: zarr.Array | zarr.Group) -> zarr.Group:
+    """A group node (``data/``, ``meta/``), for the same reason as :func:`_array`."""
+    return cast(zarr.Group, node)
 
 
 def _compressor() -> numcodecs.Blosc:
@@ -44,7 +55,7 @@ class EpisodeStore:
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def open(cls, path: str | Path, writable: bool = False) -> EpisodeStore:
+    def open(cls, path: str | os.PathLike, writable: bool = False) -> EpisodeStore:
         """Open an existing store; a half-written last episode is dropped when writable."""
         path = Path(path)
         if not path.exists():
@@ -79,11 +90,11 @@ class EpisodeStore:
         return cls(path, group, writable=True)
 
     def _validate(self) -> None:
-        if "meta" not in self.root or "episode_ends" not in self.root["meta"]:
+        if "meta" not in self.root or "episode_ends" not in _group(self.root["meta"]):
             raise DataError(f"{self.path}: missing key meta/episode_ends")
         if "data" not in self.root:
             raise DataError(f"{self.path}: missing group data/")
-        ends = np.asarray(self.root["meta/episode_ends"][:], dtype=np.int64)
+        ends = np.asarray(_array(self.root["meta/episode_ends"])[:], dtype=np.int64)
         if ends.size and ends[-1] == 0 and (ends.size == 1 or ends[-2] > 0):
             # Grown but not yet filled: a writer died between zarr's resize and its chunk write.
             ends = ends[:-1]
@@ -91,7 +102,7 @@ class EpisodeStore:
             raise DataError(f"{self.path}: meta/episode_ends is not strictly increasing and positive")
         self._ends = ends
         n = self.n_steps
-        for key, arr in self.root["data"].arrays():
+        for key, arr in _group(self.root["data"]).arrays():
             if arr.shape[0] < n:
                 raise DataError(
                     f"{self.path}: data/{key} has {arr.shape[0]} steps but meta/episode_ends needs {n}"
@@ -100,14 +111,15 @@ class EpisodeStore:
     def _repair(self) -> None:
         """Drop what a killed writer left past the last committed episode."""
         n, e = self.n_steps, self.n_episodes
-        for _, arr in self.root["data"].arrays():
+        for _, arr in _group(self.root["data"]).arrays():
             if arr.shape[0] > n:
                 arr.resize((n,) + arr.shape[1:])
-        if self.root["meta/episode_ends"].shape[0] > e:
-            self.root["meta/episode_ends"].resize((e,))
+        if _array(self.root["meta/episode_ends"]).shape[0] > e:
+            _array(self.root["meta/episode_ends"]).resize((e,))
+        meta = _group(self.root["meta"])
         for name in ("episode_seeds", "episode_scores"):
-            if name in self.root["meta"] and self.root["meta"][name].shape[0] > e:
-                self.root["meta"][name].resize((e,))
+            if name in meta and _array(meta[name]).shape[0] > e:
+                _array(meta[name]).resize((e,))
         for partial in self.path.rglob("*.partial"):
             partial.unlink(missing_ok=True)
 
@@ -130,15 +142,15 @@ class EpisodeStore:
 
     @property
     def keys(self) -> list[str]:
-        return sorted(k for k, _ in self.root["data"].arrays())
+        return sorted(k for k, _ in _group(self.root["data"]).arrays())
 
     def shape(self, key: str) -> tuple[int, ...]:
         return (self.n_steps,) + tuple(self.array(key).shape[1:])
 
     def array(self, key: str) -> zarr.Array:
-        if key not in self.root["data"]:
+        if key not in _group(self.root["data"]):
             raise DataError(f"{self.path}: missing key data/{key} (has {', '.join(self.keys) or 'none'})")
-        return self.root["data"][key]
+        return _array(_group(self.root["data"])[key])
 
     def read(self, key: str, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Steps ``[start, stop)`` of ``key``, never past the last whole episode."""
@@ -157,14 +169,14 @@ class EpisodeStore:
 
     def episode_seeds(self) -> np.ndarray | None:
         """Seeds of our collected episodes; ``None`` for stores recorded elsewhere."""
-        if "episode_seeds" not in self.root["meta"]:
+        if "episode_seeds" not in _group(self.root["meta"]):
             return None
-        return np.asarray(self.root["meta/episode_seeds"][: self.n_episodes])
+        return np.asarray(_array(self.root["meta/episode_seeds"])[: self.n_episodes])
 
     def episode_scores(self) -> np.ndarray | None:
-        if "episode_scores" not in self.root["meta"]:
+        if "episode_scores" not in _group(self.root["meta"]):
             return None
-        return np.asarray(self.root["meta/episode_scores"][: self.n_episodes])
+        return np.asarray(_array(self.root["meta/episode_scores"])[: self.n_episodes])
 
     def check_finite(self, keys: list[str] | None = None) -> None:
         """Raise naming the first key holding NaN or inf (read chunk by chunk)."""
@@ -195,22 +207,22 @@ class EpisodeStore:
             value = np.asarray(value)
             if np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
                 raise DataError(f"{self.path}: refusing to write NaN or inf into data/{key}")
-            if key not in self.root["data"]:
+            if key not in _group(self.root["data"]):
                 row = int(np.prod(value.shape[1:])) * value.dtype.itemsize
                 chunk = max(1, min(4096, _CHUNK_BYTES // max(1, row)))
-                self.root["data"].create_array(
+                _group(self.root["data"]).create_array(
                     key, shape=(0,) + value.shape[1:], chunks=(chunk,) + value.shape[1:],
                     dtype=value.dtype, compressors=_compressor(),
                 )
-            arr = self.root["data"][key]
+            arr = _array(_group(self.root["data"])[key])
             if arr.shape[1:] != value.shape[1:]:
                 raise DataError(f"{self.path}: data/{key} has rows {arr.shape[1:]}, episode has {value.shape[1:]}")
             arr.append(value.astype(arr.dtype, copy=False), axis=0)
-        meta = self.root["meta"]
-        meta["episode_seeds"].append(np.array([seed], dtype=np.int64))
-        meta["episode_scores"].append(np.array([score], dtype=np.float64))
+        meta = _group(self.root["meta"])
+        _array(meta["episode_seeds"]).append(np.array([seed], dtype=np.int64))
+        _array(meta["episode_scores"]).append(np.array([score], dtype=np.float64))
         new_end = self.n_steps + length
-        meta["episode_ends"].append(np.array([new_end], dtype=np.int64))
+        _array(meta["episode_ends"]).append(np.array([new_end], dtype=np.int64))
         self._ends = np.append(self._ends, new_end)
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Sequence
 from typing import Any, NoReturn
 
 import typer
@@ -20,8 +21,9 @@ def fail(message: str) -> NoReturn:
 class OneLineErrors(TyperGroup):
     """The root command: user errors print one line (GPC_DEBUG=1 keeps the traceback)."""
 
-    def main(self, args: Any = None, prog_name: str | None = None, **extra: Any) -> Any:
-        extra.pop("standalone_mode", None)
+    def main(self, args: Sequence[str] | None = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, windows_expand_args: bool = True, **extra: Any) -> Any:
+        extra["complete_var"], extra["windows_expand_args"] = complete_var, windows_expand_args
         try:
             return super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
         except typer.Abort:

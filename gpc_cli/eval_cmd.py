@@ -47,7 +47,7 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
                         vlm_cache: Path | None = None):
     """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``)."""
     from gpc.harness.recipes import RewardSpec, make_recipe
-    from gpc.models.policy.controller import SamplingConfig
+    from gpc.models.planning.config import SamplingConfig
 
     o = planning
     vlm = None
@@ -85,6 +85,7 @@ def eval_run(
     from gpc.cli.reports import parse_seeds
     from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
 
+    assert planning is not None  # with_planning_options passes them
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
     results = []
@@ -120,6 +121,7 @@ def plan_one(
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
+    assert planning is not None  # with_planning_options passes them
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), task=recipe.task, goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)

@@ -42,6 +42,7 @@ def train(
         config = dataclasses.replace(config, input_size=image_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
+    assert options is not None  # with_run_options passes the Lightning options
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
     echo_result(trainer.train(RewardPredictorModule, config, dataset, run))
 

@@ -42,6 +42,7 @@ def policy(
         policy_config = dataclasses.replace(policy_config, encoder=dataclasses.replace(policy_config.encoder, goal=True))
     if lr is not None:
         policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
+    assert options is not None  # with_run_options passes the Lightning options
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
     echo_result(trainer.train(PolicyModule, policy_config, dataset, run))
 

@@ -40,7 +40,7 @@ def train(
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
     from gpc.models.training import trainer
-    from gpc.models.world_models.config import FEEDBACK, OBS_TYPES, world_model_profile
+    from gpc.models.world_models.config import FEEDBACK, OBS_TYPES, VisualWorldModelConfig, world_model_profile
     from gpc.models.world_models.module import WorldModelModule, find_phase_one
 
     if obs not in OBS_TYPES:
@@ -54,7 +54,11 @@ def train(
         chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--frame" if "frame" in str(exc) else "--profile") from None
-    config = dataclasses.replace(chosen.config, unroll=unroll, **({"feedback": feedback} if feedback else {}))
+    assert options is not None  # with_run_options passes the Lightning options
+    config = dataclasses.replace(chosen.config, unroll=unroll)
+    if feedback is not None:
+        assert isinstance(config, VisualWorldModelConfig)  # checked above: --obs image
+        config = dataclasses.replace(config, feedback=feedback)
     if phase == 2 and init is None and not options["resume"]:
         init = find_phase_one(out)
         typer.echo(f"phase 2 starts from {init}")

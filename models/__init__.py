@@ -1,23 +1,16 @@
-"""Networks and LightningModules (policy now; world models and reward predictors follow).
+"""Networks, the components that learn (policy, world models, rewards), the planners, and how they train.
 
-Split as DIAMOND splits its diffusion stack:
+One folder per concept (DIAMOND's split, one training contract):
 
-- plain networks: ``unet1d`` (Diffusion Policy's FiLM 1-D U-Net), ``resnet`` (ResNet18 with
-  GroupNorm, spatial softmax), ``encoders`` (one observation-encoder interface for state,
-  keypoint and image observations);
-- diffusion: ``diffusion`` (DDPM schedule, DDPM/DDIM samplers), ``ema`` (EMA weights);
-- the policy: ``policy_config`` (frozen configs and profiles), ``denoiser`` (network + DDPM
-  loss), ``policy`` (``PolicyModule``: batch in, loss and logs out; ``sample`` /
-  ``sample_batch`` out), ``checkpoint`` (kind/task records, clear load errors),
-  ``training`` (``train_policy``: one run with best/last checkpoints and resume);
-- world models: ``world_model_config`` (state and visual configs, profiles), ``world_model``
-  (``StateDynamics`` MLP and ``WorldModelModule``, which trains and checkpoints either kind),
-  ``visual_world_model`` (``VisualDynamics``: frames in, frames out), ``edm`` (EDM
-  preconditioned ``Denoiser`` and ``EulerSampler``, frozen or sampled noise), ``unet2d``
-  (AdaGroupNorm U-Net), ``world_model_training``, ``world_model_eval`` /
-  ``visual_world_model_eval`` (per-step errors against the nothing-moves baseline);
-- ``protocols``: the interfaces planners use.
+- ``networks``: plain networks and diffusion processes: the FiLM 1-D U-Net, the AdaGroupNorm 2-D U-Net,
+  ResNet18 with spatial softmax, the MLP, the observation encoders, DDPM/DDIM (``ddpm``) and EDM (``edm``);
+- ``policy``: Diffusion Policy: its config and profiles, the denoiser, the LightningModule, the BC controller;
+- ``world_models``: the state MLP and visual EDM dynamics, the module that trains either, open-loop evaluations;
+- ``rewards``: the registration reward, the learned image reward, the VLM selector;
+- ``planning``: the protocols planners depend on, the objective, the planners, configs and ``load_planner``;
+- ``training``: ``TrainableModule`` (the contract every component follows) and ``train``, run configs and
+  profiles, checkpoints, EMA, the optimiser recipe.
 
-Submodules are imported explicitly (``from models.policy import PolicyModule``) so that
-importing one piece does not pull in Lightning. ``models`` imports ``datasets`` only.
+``gpc.models`` imports ``gpc.datasets`` only; a task reaches it as a ``gpc.datasets.layout.TaskLayout``.
+Submodules are imported explicitly so that importing one piece does not pull in Lightning.
 """

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gpc.harness.collection import evaluate_collector
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.env import PushTEnv
-from gpc.tasks.pusht.expert import ExpertConfig, PushTExpert, approach_paths, clearance, evaluate_expert
+from gpc.tasks.pusht.expert import ExpertConfig, PushTExpert, approach_paths, clearance
 
 
 def _actions(env_seed: int, expert_seed: int, steps: int, goal: str = "fixed") -> tuple[np.ndarray, np.ndarray]:
@@ -25,7 +26,7 @@ def _actions(env_seed: int, expert_seed: int, steps: int, goal: str = "fixed") -
 
 
 def test_solves_fixed_goal_seeds() -> None:
-    res = evaluate_expert(range(100000, 100012))
+    res = evaluate_collector("pusht", "expert", range(100000, 100012))
     assert res["mean_score"] >= 0.85
     assert res["success_rate"] >= 0.6
     assert len(res["scores"]) == len(res["successes"]) == len(res["steps"]) == len(res["seconds"]) == 12
@@ -33,7 +34,7 @@ def test_solves_fixed_goal_seeds() -> None:
 
 
 def test_solves_random_goals() -> None:
-    res = evaluate_expert(range(3), goal="random")
+    res = evaluate_collector("pusht", "expert", range(3), goal="random")
     assert res["mean_score"] >= 0.85
 
 

@@ -2,8 +2,8 @@
 
 The weights are drawn per parameter name (not per construction order), so a refactor that keeps
 the networks and their parameter names (what checkpoints depend on) must keep these numbers; one
-that changes a formula, an input feature or a default fails here. The stored values were first
-written by the code before the library redesign and have not changed since (docs/results.md).
+that changes a formula, an input feature or a default fails here. The code before the library
+redesign gives the same values to the last bit (docs/results.md).
 Rewrite them on purpose with ``GPC_WRITE_GOLDEN=1 pytest tests/test_golden.py``.
 """
 

@@ -297,3 +297,52 @@ def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
                                    "--seeds", "100000", "--out", str(tmp_path / "bad")])
     assert bad.exit_code != 0 and "a visual world model cannot plan for a keypoints policy" in bad.output
     assert len(bad.output.strip().splitlines()) == 1
+
+
+PLAIN_PYTHON = """
+import sys, json
+from gpc.harness.evaluation import EvalConfig, evaluate
+from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.planner import Planner
+from gpc.models.policy.module import PolicyModule
+from gpc.models.rewards.registration import RegistrationReward
+from gpc.models.world_models.module import WorldModelModule
+from gpc.tasks import get_task
+
+policy_ckpt, wm_ckpt = sys.argv[1:3]
+layout = get_task("pusht").layout
+planner = Planner(PlannerConfig(kind="rank", num_proposals=4), WorldModelModule.load_from_checkpoint(wm_ckpt),
+                  RegistrationReward.from_layout(layout), PolicyModule.load_from_checkpoint(policy_ckpt))
+result = evaluate(lambda: planner, EvalConfig(seeds=(100000, 100001), task="pusht", max_steps=16, batch=2))
+print(json.dumps({"score": result["mean_score"], "shares": sorted(result["time_share"]),
+                  "cli": sorted(m for m in sys.modules if m.startswith("gpc.cli") or m.split(".")[0] in ("typer", "click"))}))
+"""
+
+
+def test_a_planner_built_in_plain_python_runs_closed_loop_without_the_cli(ckpts, tmp_path):
+    """The library alone: a planner assembled from its parts and the harness; neither gpc.cli nor Typer is imported."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "plan.py"
+    script.write_text(PLAIN_PYTHON)
+    out = subprocess.run([sys.executable, str(script), ckpts["policy"], ckpts["wm"]], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["cli"] == [] and 0.0 <= report["score"] <= 1.0
+    assert report["shares"] == ["policy", "reward", "world_model"]
+
+
+def test_load_planner_refuses_a_world_model_of_the_other_family(ckpts, tmp_path):
+    """The pairing check lives in the library: a visual world model cannot plan for a keypoint policy."""
+    from gpc.datasets.errors import DataError
+    from gpc.datasets.normalizer import MinMaxNormalizer
+    from gpc.models.training.checkpoint import checkpoint_meta
+
+    visual = WorldModelModule(world_model_profile("tiny", 1, LAYOUT, obs="image").config, normalizer=MinMaxNormalizer())
+    path = tmp_path / "visual.ckpt"
+    torch.save({"gpc": checkpoint_meta("world_model", "pusht", obs="image", phase=1), "state_dict": visual.state_dict(),
+                "hyper_parameters": dict(visual.hparams)}, path)
+    with pytest.raises(DataError, match="a visual world model cannot plan for a keypoints policy"):
+        load_planner(ckpts["policy"], path, RegistrationReward.from_layout(LAYOUT))

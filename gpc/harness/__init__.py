@@ -1,0 +1,1 @@
+"""The harness: closed-loop evaluation, controller recipes, collection, stores, paired statistics; no CLI."""

@@ -79,7 +79,7 @@ class CollectSummary:
 def _run_one(args: tuple[str, str, int, str, bool, int]) -> tuple[dict[str, np.ndarray], dict]:
     task_name, kind, seed, goal, images, max_steps = args
     task = get_task(task_name)
-    data, stats = task.record(kind, seed, goal=goal, images=images, max_steps=max_steps)
+    data, stats = task.record(kind, seed, goal, images, max_steps)
     return data, asdict(stats)
 
 
@@ -88,9 +88,9 @@ def open_for_job(job: CollectJob) -> EpisodeStore:
     wanted = job.provenance()
     if job.out.exists() and not job.overwrite:
         store = EpisodeStore.open(job.out, writable=True)
-        have = {k: store.attrs.get(k) for k in wanted}
-        if have != _plain(wanted):
-            diff = [k for k in wanted if have[k] != _plain(wanted)[k]]
+        have, want = {k: store.attrs.get(k) for k in wanted}, _plain(wanted)
+        if have != want:
+            diff = [k for k in wanted if have[k] != want[k]]
             raise DataError(
                 f"{job.out}: holds data of another kind ({', '.join(diff)} differ); "
                 "choose another --out or pass --overwrite"
@@ -100,7 +100,7 @@ def open_for_job(job: CollectJob) -> EpisodeStore:
     return EpisodeStore.create(job.out, attrs, overwrite=job.overwrite)
 
 
-def _plain(value: object) -> object:
+def _plain(value: dict[str, Any]) -> dict[str, Any]:
     """Round-trip through JSON types, as Zarr attributes store them."""
     import json
 

@@ -82,12 +82,13 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         controller.start(seeds)
     stats_before = controller.stats() if hasattr(controller, "stats") else {}
     hist = [deque([task.observe(env, images, sim)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
-    rows = [{"seed": int(s), "score": 0.0, "success": False, "steps": 0, **{f"{m}_max": 0.0 for m in task.info_metrics}}
-            for s in seeds]
+    rows: list[dict[str, Any]] = [
+        {"seed": int(s), "score": 0.0, "success": False, "steps": 0, **{f"{m}_max": 0.0 for m in task.info_metrics}}
+        for s in seeds]
     done = [False] * len(seeds)
     latencies: list[float] = []
     parts: dict[str, float] = {}
-    films = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
+    films: dict[int, list[np.ndarray]] = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
     while not all(done):
         obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in hist[0][0]}
         t0 = time.perf_counter()
@@ -116,6 +117,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
     for i, film in films.items():
         from gpc.harness.video import write_mp4
 
+        assert config.video_dir is not None  # EvalConfig refuses videos without a directory
         write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
     stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
     return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats}

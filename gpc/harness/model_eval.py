@@ -63,12 +63,13 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
             raise ValueError(f"--noise {noise!r}: use one of {', '.join(NOISE_MODES)}")
         if sampler_steps is not None:
             module.dynamics.use_sampler(dataclasses.replace(module.dynamics.config.sampler, steps=sampler_steps))
-        readout: ColourReadout | LearnedPoseReadout = ColourReadout.from_layout(layout)
+        colour = ColourReadout.from_layout(layout)
+        readout: ColourReadout | LearnedPoseReadout = colour
         if pose_reader is not None:
             from gpc.models.rewards.learned import RewardPredictorModule
 
             predictor = RewardPredictorModule.load_from_checkpoint(pose_reader, task=module.config.task).predictor
-            readout = LearnedPoseReadout(readout, predictor, str(pose_reader))
+            readout = LearnedPoseReadout(colour, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon,
                                                 readout=readout, stride=stride or IMAGE_STRIDE,
                                                 max_windows=max_windows, noise=noise)

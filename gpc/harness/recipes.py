@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from gpc.datasets.errors import DataError
-from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
-from gpc.models.policy.controller import PolicyController, SamplingConfig
+from gpc.models.policy.controller import PolicyController
 from gpc.tasks import get_task
 from gpc.tasks.base import Task
 
@@ -65,6 +65,7 @@ def build_reward(spec: RewardSpec, task: Task) -> Any:
     if spec.kind == "learned":
         from gpc.models.rewards.learned import ImageReward
 
+        assert spec.checkpoint is not None  # RewardSpec refuses a learned reward without one
         return ImageReward.from_checkpoint(spec.checkpoint, task.layout.target.goal, config, task=task.name)
     from gpc.models.rewards.vlm import VLMReward
 

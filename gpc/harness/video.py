@@ -22,7 +22,7 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
                 frame = cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
             if writer is None:
                 h, w = frame.shape[:2]
-                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
                 if not writer.isOpened():
                     raise OSError(f"{path}: OpenCV cannot write MP4 here")
             writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))

@@ -22,7 +22,9 @@ centre-cropped in evaluation mode.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 from torch import nn
@@ -93,11 +95,11 @@ def crop_images(x: torch.Tensor, size: int, random: bool) -> torch.Tensor:
     if not random:
         top, left = (h - size) // 2, (w - size) // 2
         return x[:, top : top + size, left : left + size]
-    top = torch.randint(0, h - size + 1, (n,), device=x.device)
-    left = torch.randint(0, w - size + 1, (n,), device=x.device)
+    tops = torch.randint(0, h - size + 1, (n,), device=x.device)
+    lefts = torch.randint(0, w - size + 1, (n,), device=x.device)
     offsets = torch.arange(size, device=x.device)
-    rows = (top[:, None] + offsets)[:, :, None]
-    cols = (left[:, None] + offsets)[:, None, :]
+    rows = (tops[:, None] + offsets)[:, :, None]
+    cols = (lefts[:, None] + offsets)[:, None, :]
     return x[torch.arange(n, device=x.device)[:, None, None], rows, cols]
 
 
@@ -128,6 +130,7 @@ class ObsEncoder(nn.Module):
         super().__init__()
         self.config = config
         agent = config.agent_dims
+        parts: list[VectorPart | ImagePart]
         if config.obs_type == "state":
             parts = [VectorPart("state", config.shape("state"))]
         elif config.obs_type == "keypoints":
@@ -144,4 +147,5 @@ class ObsEncoder(nn.Module):
         return self.config.keys
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        return torch.cat([part(obs[part.key]) for part in self.parts], dim=-1)
+        parts = cast(Iterable[VectorPart | ImagePart], self.parts)  # what __init__ put there
+        return torch.cat([part(obs[part.key]) for part in parts], dim=-1)

@@ -12,7 +12,9 @@ paper: the finest level's skip is never used and every up level upsamples.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 from torch import nn
@@ -120,13 +122,13 @@ class ConditionalUnet1D(nn.Module):
         t = torch.as_tensor(timestep, device=x.device).reshape(-1).expand(x.shape[0])
         cond = torch.cat([self.step_mlp(sinusoidal_embedding(t, self.step_embed_dim)), global_cond], dim=-1)
         skips = []
-        for res1, res2, downsample in self.down:
+        for res1, res2, downsample in cast(Iterable[nn.ModuleList], self.down):  # (block, block, resample) each
             x = res2(res1(x, cond), cond)
             skips.append(x)
             x = downsample(x)
         for res in self.mid:
             x = res(x, cond)
-        for res1, res2, upsample in self.up:
+        for res1, res2, upsample in cast(Iterable[nn.ModuleList], self.up):
             x = torch.cat([x, skips.pop()], dim=1)
             x = upsample(res2(res1(x, cond), cond))
         return self.final(x).transpose(1, 2)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -63,6 +64,7 @@ class SelfAttention2d(nn.Module):
         self.qkv = nn.Conv2d(channels, 3 * channels, 1)
         self.out = nn.Conv2d(channels, channels, 1)
         nn.init.zeros_(self.out.weight)
+        assert self.out.bias is not None  # Conv2d's default bias=True
         nn.init.zeros_(self.out.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -91,6 +93,8 @@ class ResBlock(nn.Module):
 
 class FourierFeatures(nn.Module):
     """``(B,)`` scalars -> ``(B, dim)`` random Fourier features (fixed, saved with the weights)."""
+
+    weight: torch.Tensor  # registered buffer
 
     def __init__(self, dim: int) -> None:
         super().__init__()
@@ -135,6 +139,7 @@ class InnerUNet(nn.Module):
         self.norm_out = nn.GroupNorm(max(1, c[0] // g), c[0])
         self.conv_out = nn.Conv2d(c[0], img_channels, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)
+        assert self.conv_out.bias is not None  # Conv2d's default bias=True
         nn.init.zeros_(self.conv_out.bias)
 
     def forward(self, noisy: torch.Tensor, c_noise: torch.Tensor, context: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
@@ -148,7 +153,7 @@ class InnerUNet(nn.Module):
         for down, blocks in zip(self.downsample, self.down):
             x = down(x)
             saved.append(x)
-            for block in blocks:
+            for block in cast(nn.ModuleList, blocks):
                 x = block(x, emb)
                 saved.append(x)
         for block in self.mid:
@@ -156,7 +161,7 @@ class InnerUNet(nn.Module):
         for i, blocks in enumerate(self.up):
             if i:
                 x = self.upsample[len(self.upsample) - i](F.interpolate(x, scale_factor=2.0, mode="nearest"))
-            for block in blocks:
+            for block in cast(nn.ModuleList, blocks):
                 x = block(torch.cat([x, saved.pop()], dim=1), emb)
         x = self.conv_out(F.silu(self.norm_out(x)))
         return x[..., :h, :w]

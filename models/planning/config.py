@@ -7,7 +7,13 @@ ground-truth-simulator ceiling is ``rank`` with the simulator as world model.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from gpc.models.planning.protocols import ActionProposer
 
 PLANNERS = ("rank", "opt", "rank-opt", "cem", "mppi", "grad")
 WITH_POLICY = ("rank", "opt", "rank-opt")  # planners that read the policy's proposals
@@ -83,3 +89,24 @@ class PlannerConfig:
         if self.kind == "opt":
             return f"opt M={self.opt_steps}"
         return f"{self.kind} {self.num_proposals}x{self.opt_steps}"
+
+
+@dataclass(frozen=True)
+class SamplingConfig:
+    """How the policy samples at deployment (``None``: the checkpoint's own setting)."""
+
+    method: str | None = None  # ddim | ddpm
+    steps: int | None = None  # denoising steps
+    spacing: str | None = None  # leading | trailing (see gpc.models.networks.ddpm)
+
+    def __post_init__(self) -> None:
+        if self.method not in (None, "ddim", "ddpm"):
+            raise ValueError(f"--method {self.method!r}: use ddim or ddpm")
+        if self.steps is not None and self.steps < 1:
+            raise ValueError(f"--steps {self.steps}: must be at least 1")
+        if self.spacing not in (None, "leading", "trailing"):
+            raise ValueError(f"--spacing {self.spacing!r}: use leading or trailing")
+
+    def sample(self, policy: ActionProposer, obs: Mapping[str, Any], k: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
+        """``(B, K, horizon, A)`` proposals from ``policy`` with this sampler (one generator per history)."""
+        return policy.sample_batch(obs, k, list(generators), method=self.method, steps=self.steps, spacing=self.spacing)

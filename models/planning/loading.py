@@ -11,10 +11,9 @@ import os
 from typing import Any
 
 from gpc.datasets.errors import DataError
-from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Reward, WorldModel
-from gpc.models.policy.controller import SamplingConfig
 from gpc.models.policy.module import PolicyModule
 from gpc.models.world_models.module import load_world_model
 
@@ -46,10 +45,11 @@ def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os
 
     No simulator is involved; give ``config.action_low/high`` your robot's action box.
     """
-    if not isinstance(policy, PolicyModule):
-        policy = PolicyModule.load_from_checkpoint(policy)
-    source = str(world_model) if isinstance(world_model, (str, os.PathLike)) else type(world_model).__name__
+    proposer = policy if isinstance(policy, PolicyModule) else PolicyModule.load_from_checkpoint(policy)
+    model: WorldModel
     if isinstance(world_model, (str, os.PathLike)):
-        world_model = load_world_model(world_model)
-    check_pairing(policy, world_model, source)
-    return Planner(config, world_model, reward, policy, sampling)
+        source, model = str(world_model), load_world_model(world_model)
+    else:
+        source, model = type(world_model).__name__, world_model
+    check_pairing(proposer, model, source)
+    return Planner(config, model, reward, proposer, sampling)

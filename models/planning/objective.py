@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 import torch
 
@@ -52,7 +53,8 @@ class Objective:
                 goals = [None if self.goal is None else self.goal[i] for i in range(b)]
                 per = futures.unflatten(0, (b, k))
                 ids = self.episodes if self.episodes is not None and len(self.episodes) == b else range(b)
-                scores = torch.stack([self.reward(per[i], goals[i], episode=int(ids[i])) for i in range(b)])
+                select: Any = self.reward  # a selector also takes the episode id (it warns once per episode)
+                scores = torch.stack([select(per[i], goals[i], episode=int(ids[i])) for i in range(b)])
             else:
                 goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
                 scores = self.reward(futures, goal).unflatten(0, (b, k))

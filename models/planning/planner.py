@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.protocols import ActionProposer, Plan, Reward, WorldModel
-from gpc.models.policy.controller import SamplingConfig
 
 
 class Planner:
@@ -74,9 +73,10 @@ class Planner:
         goal = torch.as_tensor(np.asarray(obs[GOAL_KEY])[:, -1], dtype=torch.float32) if GOAL_KEY in obs else None
         objective = Objective(self.world_model, self.reward, history, goal, timer, self.episodes)
         if cfg.uses_policy:
+            assert self.policy is not None  # __init__ refuses a policy planner without one
             with timer("policy"):
                 k = 1 if cfg.kind == "opt" else cfg.num_proposals
-                chunks = self.policy.sample_batch(obs, k, list(generators), **self.sampling.overrides)[:, :, self.now :].float()
+                chunks = self.sampling.sample(self.policy, obs, k, generators)[:, :, self.now :].float()
             if cfg.kind != "rank":
                 chunks = self.ascend(objective, chunks, timer)
             scores, futures = objective(chunks)
@@ -147,7 +147,7 @@ class Planner:
             with timer("optimizer"):
                 top = scores.argmax(dim=1)
                 rows = torch.arange(b)
-                if best_score is None:
+                if best_chunk is None or best_score is None or best_future is None:
                     best_chunk, best_score, best_future = samples[rows, top], scores[rows, top], futures[rows, top]
                 else:
                     better = scores[rows, top] > best_score
@@ -160,4 +160,5 @@ class Planner:
                 else:
                     weights = torch.softmax((scores - scores.max(dim=1, keepdim=True).values) / cfg.temperature, dim=1)
                     mean = (weights[..., None, None] * samples).sum(dim=1)
+        assert best_chunk is not None and best_score is not None and best_future is not None  # opt_steps >= 1
         return best_chunk[:, None], best_score[:, None], best_future[:, None]

@@ -10,9 +10,31 @@ import numpy as np
 import torch
 
 
+class ChunkTimeline(Protocol):
+    """The action-chunk timeline a policy samples on (Diffusion Policy's, see ``PolicyConfig``)."""
+
+    @property
+    def horizon(self) -> int: ...  # actions per chunk
+
+    @property
+    def n_obs_steps(self) -> int: ...  # observation history length; the chunk's index n_obs_steps - 1 is "now"
+
+    @property
+    def n_action_steps(self) -> int: ...  # actions executed per decision
+
+    @property
+    def action_dim(self) -> int: ...
+
+
 @runtime_checkable
 class ActionProposer(Protocol):
     """A generative policy: K action chunks for one observation history in one batched call."""
+
+    @property
+    def config(self) -> ChunkTimeline: ...
+
+    @property
+    def obs_keys(self) -> tuple[str, ...]: ...  # the observation keys it reads
 
     def sample(
         self, obs_history: Mapping[str, Any], num_samples: int = 1, generator: torch.Generator | None = None
@@ -22,9 +44,11 @@ class ActionProposer(Protocol):
 
     def sample_batch(
         self, obs: Mapping[str, Any], num_samples: int = 1,
-        generator: torch.Generator | Sequence[torch.Generator] | None = None,
+        generator: torch.Generator | Sequence[torch.Generator] | None = None, *,
+        method: str | None = None, steps: int | None = None, spacing: str | None = None,
     ) -> torch.Tensor:
-        """``{key: (B, T, ...)}`` -> ``(B, K, horizon, action_dim)``; one generator per history repeats ``sample``."""
+        """``{key: (B, T, ...)}`` -> ``(B, K, horizon, action_dim)``; one generator per history repeats ``sample``.
+        ``method`` / ``steps`` / ``spacing``: another sampler than the policy's own (``None``: its own)."""
         ...
 
 
@@ -62,7 +86,8 @@ class WorldModel(Protocol):
     ``(K, T', 3, S, S)``; the ground-truth simulator reads ``sim``).
     """
 
-    n_obs_steps: int  # history length H the model reads
+    @property
+    def n_obs_steps(self) -> int: ...  # history length H the model reads
 
     def rollout(self, history: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         """``(K, H, D)`` or ``(H, D)`` raw states, ``(K, T, A)`` raw actions -> ``(K, T, D)`` predicted raw

@@ -1,0 +1,1 @@
+"""Diffusion Policy: config and profiles, denoiser, LightningModule, and the behaviour-cloning controller."""

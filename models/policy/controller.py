@@ -9,30 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from gpc.models.planning.config import SamplingConfig
 from gpc.models.planning.protocols import Plan
 from gpc.models.policy.module import PolicyModule
-
-
-@dataclass(frozen=True)
-class SamplingConfig:
-    """How the policy samples at deployment (``None``: the checkpoint's own setting)."""
-
-    method: str | None = None  # ddim | ddpm
-    steps: int | None = None  # denoising steps
-    spacing: str | None = None  # leading | trailing (see models.diffusion)
-
-    def __post_init__(self) -> None:
-        if self.method not in (None, "ddim", "ddpm"):
-            raise ValueError(f"--method {self.method!r}: use ddim or ddpm")
-        if self.steps is not None and self.steps < 1:
-            raise ValueError(f"--steps {self.steps}: must be at least 1")
-        if self.spacing not in (None, "leading", "trailing"):
-            raise ValueError(f"--spacing {self.spacing!r}: use leading or trailing")
-
-    @property
-    def overrides(self) -> dict[str, object]:
-        """Keyword arguments for ``PolicyModule.sample_batch``."""
-        return {"method": self.method, "steps": self.steps, "spacing": self.spacing}
 
 
 class PolicyController:
@@ -47,7 +26,7 @@ class PolicyController:
     def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
         t0 = time.perf_counter()
         batch = {k: torch.as_tensor(obs[k]) for k in self.obs_keys}
-        chunk = self.policy.sample_batch(batch, 1, list(generators), **self.sampling.overrides)[:, 0].cpu().numpy()
+        chunk = self.sampling.sample(self.policy, batch, 1, generators)[:, 0].cpu().numpy()
         now = chunk[:, self.policy.action_slice.start :]  # the chunk from the current step on
         return Plan(actions=now[:, : self.policy.config.n_action_steps], chunk=now,
                     seconds={"policy": time.perf_counter() - t0})

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -124,8 +124,11 @@ class PolicyModule(TrainableModule):
     def validation_loss(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """EMA weights on noise and steps seeded by the batch index, so the metric moves only with the weights."""
         obs, action = self._split_batch(batch)
-        assert self.ema is not None
-        return self.ema.model.loss(obs, action, generator=torch.Generator().manual_seed(batch_idx))
+        return self._net(use_ema=True).loss(obs, action, generator=torch.Generator().manual_seed(batch_idx))
+
+    def _net(self, use_ema: bool) -> ActionDenoiser:
+        """The averaged network (sampling, validation) or the one being trained."""
+        return cast(ActionDenoiser, self.ema.model) if use_ema and self.ema is not None else self.model
 
     # ------------------------------------------------------------------ sampling
     def _noise(self, batch: int, shape: tuple[int, ...], generator: Generators) -> torch.Tensor:
@@ -158,7 +161,7 @@ class PolicyModule(TrainableModule):
         if num_samples < 1:
             raise ValueError(f"num_samples {num_samples}: must be at least 1")
         sampler_cfg = SamplerConfig(method or cfg.sampler.method, steps or cfg.sampler.steps, spacing or cfg.sampler.spacing)
-        net = self.ema.model if use_ema and self.ema is not None else self.model
+        net = self._net(use_ema)
         sampler = DiffusionSampler(net.schedule, sampler_cfg)
         history = self._normalize_obs(obs)
         b = self._check_history(history)
@@ -193,4 +196,5 @@ class PolicyModule(TrainableModule):
             if b is not None and value.shape[0] != b:
                 raise ValueError(f"observation {key!r}: batch {value.shape[0]} differs from {b}")
             b = value.shape[0]
+        assert b is not None, "no observation keys"
         return int(b)

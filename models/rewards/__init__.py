@@ -1,0 +1,1 @@
+"""Rewards that score predicted futures: registration (state), learned (image), and a VLM that selects."""

@@ -40,7 +40,7 @@ def _episodes(datasets: Sequence[str | os.PathLike], split: str, record: dict[st
 def _summary(errors: dict[str, np.ndarray]) -> dict[str, Any]:
     true, pred, err = errors["registration_true_px"], errors["registration_pred_px"], errors["registration_abs_err_px"]
     ranks = [np.argsort(np.argsort(v)).astype(np.float64) for v in (true, pred)]
-    spearman = float(np.corrcoef(*ranks)[0, 1]) if len(true) > 1 and ranks[0].std() > 0 and ranks[1].std() > 0 else float("nan")
+    spearman = float(np.corrcoef(ranks[0], ranks[1])[0, 1]) if len(true) > 1 and ranks[0].std() > 0 and ranks[1].std() > 0 else float("nan")
     out: dict[str, Any] = {
         "frames": int(len(true)),
         "registration_mae_px": float(err.mean()), "registration_median_err_px": float(np.median(err)),

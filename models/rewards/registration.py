@@ -80,6 +80,9 @@ class PoseReward(nn.Module):
     varies per episode).
     """
 
+    vertices: torch.Tensor  # registered buffers
+    goal: torch.Tensor
+
     def __init__(self, vertices: torch.Tensor, goal: torch.Tensor, config: RewardConfig = RewardConfig()) -> None:
         super().__init__()
         vertices = torch.as_tensor(vertices, dtype=torch.float32).reshape(-1, 2)

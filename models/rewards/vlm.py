@@ -173,6 +173,7 @@ class VLMReward:
             answer = self._answer(prompt, image)
             index, reason = parse_choice(answer, k)
             if index is None:
+                assert reason is not None  # parse_choice names a reason with every missing index
                 raise _QueryFailed(reason, f"answer {answer[:60]!r} names no candidate in 1..{k}")
         except _QueryFailed as failure:
             return self._fall_back(futures, goal, episode, failure)

@@ -1,0 +1,1 @@
+"""The one training contract (TrainableModule), the train function, run configs, checkpoints, EMA and the optimiser."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 T = TypeVar("T")
 
@@ -32,15 +32,16 @@ def from_plain(cls: type[T], data: dict[str, Any] | T) -> T:
     if not isinstance(data, dict):
         raise ValueError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    # T is unbounded (PlainConfig's mixin binds it too), so mypy cannot see cls is a dataclass.
+    names = {f.name for f in dataclasses.fields(cast(Any, cls)) if f.init}
     unknown = sorted(set(data) - names)
     if unknown:
         raise ValueError(f"{cls.__name__}: unknown field(s) {', '.join(unknown)}")
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for name, value in data.items():
         hint = hints[name]
         if dataclasses.is_dataclass(hint) and isinstance(value, dict):
-            kwargs[name] = from_plain(hint, value)
+            kwargs[name] = from_plain(cast(type, hint), value)
         else:
             kwargs[name] = _tuples(value)
     return cls(**kwargs)

@@ -46,6 +46,8 @@ class EMAConfig:
 class EMAWeights(nn.Module):
     """Holds ``model``: an averaged, frozen copy of the network passed at construction."""
 
+    updates: torch.Tensor  # registered buffer: how many updates have been folded in
+
     def __init__(self, source: nn.Module, config: EMAConfig) -> None:
         super().__init__()
         self.config = config

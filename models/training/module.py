@@ -150,7 +150,7 @@ class TrainableModule(L.LightningModule):
                 self.log(f"val/{name}", value, sync_dist=True, batch_size=n)
         return loss
 
-    def configure_optimizers(self) -> dict[str, Any]:
+    def configure_optimizers(self) -> Any:  # Lightning's optimiser-and-scheduler dict
         return adamw_cosine(self.network.parameters(), self.config.optim, self.trainer)
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:

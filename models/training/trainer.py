@@ -177,7 +177,7 @@ def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.P
     if init_state is None:
         module = cls.from_data(config, data, record)
     else:
-        module = cls(config, data=record)  # type: ignore[call-arg]
+        module = cls(config, data=record)
         try:
             module.load_state_dict(init_state)
         except RuntimeError as exc:
@@ -208,7 +208,8 @@ def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunCon
     trainer = L.Trainer(
         default_root_dir=run_dir, max_steps=run.max_steps or -1, max_epochs=run.max_epochs or (-1 if run.max_steps else None),
         accelerator=run.accelerator, devices=devices, strategy=run.strategy, num_nodes=run.num_nodes,
-        precision=run.precision, logger=TensorBoardLogger(save_dir=run_dir, name="", version="tensorboard"),
+        precision=run.precision,  # type: ignore[arg-type]  # RunConfig names Lightning's precision strings
+        logger=TensorBoardLogger(save_dir=run_dir, name="", version="tensorboard"),
         callbacks=callbacks, enable_progress_bar=run.progress, log_every_n_steps=run.log_every,
         val_check_interval=run.val_every, check_val_every_n_epoch=None if run.val_every else 1,
         num_sanity_val_steps=0, enable_model_summary=run.progress,

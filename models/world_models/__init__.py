@@ -1,0 +1,1 @@
+"""World models: state (MLP) and visual (EDM) dynamics under one LightningModule, and their open-loop evaluations."""

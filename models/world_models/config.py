@@ -242,7 +242,7 @@ class WorldModelConfig(_TrainingConfig):
     """A state world model: the single-step MLP predictor, its training windows and its phase."""
 
     obs_type: str = "state"  # observations predicted
-    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)  # the network
+    dynamics: DynamicsConfig = field(kw_only=True)  # the network (its state layout is the task's: DynamicsConfig.for_layout)
     detach_feedback: bool = False  # phase 2: stop gradients through the fed-back predictions
     loss_units: str | None = None  # error scale per state entry: delta (one-step delta std) or state (data range); default by phase
 
@@ -387,4 +387,7 @@ def with_network_of(config: AnyWorldModelConfig, source: AnyWorldModelConfig) ->
             f"the initial model is for task {source.task!r} / obs {source.obs_type!r}, "
             f"not {config.task!r} / {config.obs_type!r}"
         )
+    if isinstance(config, WorldModelConfig) and isinstance(source, WorldModelConfig):
+        return dataclasses.replace(config, dynamics=source.dynamics)
+    assert isinstance(config, VisualWorldModelConfig) and isinstance(source, VisualWorldModelConfig)  # same obs_type
     return dataclasses.replace(config, dynamics=source.dynamics)

@@ -19,7 +19,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -27,10 +27,10 @@ from torchmetrics.functional.image import structural_similarity_index_measure
 
 from gpc.datasets.layout import TaskLayout
 from gpc.models.rewards.registration import registration_distance
-from gpc.models.world_models.config import IMAGE_KEY
+from gpc.models.world_models.config import IMAGE_KEY, VisualWorldModelConfig
 from gpc.models.world_models.eval_state import held_out_windows
 from gpc.models.world_models.module import WorldModelModule
-from gpc.models.world_models.visual import ACTION_KEY
+from gpc.models.world_models.visual import ACTION_KEY, VisualDynamics
 
 Colour = tuple[int, int, int]
 
@@ -140,7 +140,8 @@ def _image_scores(pred: torch.Tensor, true: torch.Tensor) -> dict[str, torch.Ten
     """``(N, T, 3, S, S)`` each -> ``{ssim, psnr}``: ``(N, T)``."""
     n, t = pred.shape[:2]
     a, b = pred.flatten(0, 1).double(), true.flatten(0, 1).double()
-    ssim = structural_similarity_index_measure(a, b, data_range=1.0, reduction="none")
+    # A tuple only with return_full_image=True.
+    ssim = cast(torch.Tensor, structural_similarity_index_measure(a, b, data_range=1.0, reduction="none"))
     mse = (a - b).pow(2).flatten(1).mean(dim=1).clamp_min(1e-10)
     return {"ssim": ssim.reshape(n, t), "psnr": (-10.0 * torch.log10(mse)).reshape(n, t)}
 
@@ -168,8 +169,9 @@ def evaluate_visual_rollouts(
 
     Windows as ``held_out_windows`` picks them (every ``stride`` steps, at most ``max_windows``).
     """
-    dyn = module.dynamics
-    c = module.config.dynamics
+    dyn, config = module.dynamics, module.config
+    assert isinstance(dyn, VisualDynamics) and isinstance(config, VisualWorldModelConfig)  # a visual world model
+    c = config.dynamics
     arrays, chosen, idx, t = held_out_windows(module, datasets, (IMAGE_KEY, ACTION_KEY), split, episodes, horizon,
                                               stride, max_windows)
     n0, f = module.n_obs_steps, c.frameskip
@@ -182,15 +184,15 @@ def evaluate_visual_rollouts(
         rows = idx[lo : lo + batch_size]
         images = torch.from_numpy(arrays.data[IMAGE_KEY][rows[:, : n0]])
         actions = torch.from_numpy(arrays.data[ACTION_KEY][rows[:, n0 - 1 : n0 - 1 + t]]).float()
-        true = dyn.frames(torch.from_numpy(arrays.data[IMAGE_KEY][rows[:, future]]))
+        recorded = dyn.frames(torch.from_numpy(arrays.data[IMAGE_KEY][rows[:, future]]))
         history = dyn.frames(images)
         pred = module.rollout(history, actions, noise=noise, generator=generator).cpu()
-        still = history[:, -1:].expand_as(true)
+        still = history[:, -1:].expand_as(recorded)
         for name, guess in (("model", pred), ("baseline", still)):
-            for metric, value in _image_scores(guess, true).items():
+            for metric, value in _image_scores(guess, recorded).items():
                 scores[name].setdefault(metric, []).append(value)
         frames_u8["model"].append(_uint8(pred))
-        frames_u8["true"].append(_uint8(true))
+        frames_u8["true"].append(_uint8(recorded))
         frames_u8["last"].append(_uint8(history[:, -1]))
     merged = {name: {m: torch.cat(v).mean(dim=0).tolist() for m, v in d.items()} for name, d in scores.items()}
     model, true, last = (np.concatenate(frames_u8[k]) for k in ("model", "true", "last"))
@@ -198,7 +200,7 @@ def evaluate_visual_rollouts(
         "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(len(idx)),
         "history": n0, "horizon": t, "frameskip": f, "resolution": c.resolution, "noise": noise,
         "sampler": asdict(dyn.config.sampler),
-        "config": replace(module.config, dynamics=dyn.config).to_dict(),  # the chain actually sampled (--sampler-steps)
+        "config": replace(config, dynamics=dyn.config).to_dict(),  # the chain actually sampled (--sampler-steps)
         "steps": [{"step": i + 1, "actions": int((i + 1) * f), **{name: {m: merged[name][m][i] for m in merged[name]}
                                                                     for name in merged}} for i in range(steps)],
     }
@@ -263,7 +265,7 @@ def frame_grid(last: np.ndarray, true: np.ndarray, pred: np.ndarray, scale: int 
 def visual_markdown_table(report: dict[str, Any], title: str = "Visual world model rollouts") -> str:
     """One row per predicted frame: SSIM and PSNR (and object pose errors, agent visibility) as model / baseline."""
     ro = report.get("readout")
-    vertex = bool(ro) and "object_vertex_units" in ro["per_step"]["model"]
+    vertex = bool(ro and "object_vertex_units" in ro["per_step"]["model"])
     head = ["step (actions)", "SSIM", "PSNR dB"] + (["object units", "object deg"] + (["object vertices"] if vertex else [])
                                                     + ["agent visible"] if ro else [])
     lines = [

@@ -78,6 +78,9 @@ class StateDynamics(nn.Module):
     statistics of the training data.
     """
 
+    angle_mask: torch.Tensor  # registered (non-persistent) buffers
+    object_xy: torch.Tensor
+
     def __init__(self, config: DynamicsConfig, normalizer: MinMaxNormalizer | None = None) -> None:
         super().__init__()
         self.config = config

@@ -49,6 +49,8 @@ def resize_frames(frames: torch.Tensor, size: int) -> torch.Tensor:
 class VisualDynamics(nn.Module):
     """Normaliser (actions) + EDM denoiser around an AdaGroupNorm U-Net + Euler sampler."""
 
+    pixel_centres: torch.Tensor  # registered (non-persistent) buffer
+
     def __init__(self, config: VisualDynamicsConfig, normalizer: MinMaxNormalizer | None = None) -> None:
         super().__init__()
         self.config = config

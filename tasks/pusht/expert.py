@@ -12,8 +12,7 @@ with short, slow pushes, since the last few percent need about a pixel of precis
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,6 +230,7 @@ class PushTExpert:
         agent, pose = np.array(snap.agent[:2]), np.array(snap.block[:3])
         if self._carrot is None or np.linalg.norm(self._carrot - agent) > 3 * self.config.max_lead:
             self.interrupt(agent)  # first call, or a scene we were not driving
+        assert self._carrot is not None  # interrupt set it
         if not self._queue:
             if self._push is not None and np.abs(self._push.pose - pose).max() > 0.5:
                 self._push = None  # the block moved during the approach: plan again
@@ -251,8 +251,9 @@ class PushTExpert:
 
     def _back_off(self, pose: np.ndarray) -> list[np.ndarray]:
         """With no useful push from here, move further out (and a little sideways) to look again."""
+        assert self._carrot is not None  # act sets it before planning
         here = to_block(self._carrot, pose)
-        away = escape(here, clearance(here) + 20.0)
+        away = escape(here, float(clearance(here)) + 20.0)
         away = away + rotate(away - COG, np.pi / 2) * self._rng.uniform(-0.3, 0.3)
         dest = np.clip(geometry.to_world(away[None], pose)[0], LO, HI)
         n = max(1, int(np.ceil(np.linalg.norm(dest - self._carrot) / self._speed)))
@@ -308,6 +309,7 @@ class PushTExpert:
     def _plan(self, snap: SimSnapshot, goal: np.ndarray) -> _Push | None:
         """Roll each candidate out from its staging point and pick a quick, effective one."""
         cfg = self.config
+        assert self._carrot is not None  # act sets it before planning
         pose = np.array(snap.block[:3])
         fine = geometry.coverage(pose, goal) >= cfg.fine_coverage
         staging, dirs = self._candidates(pose, goal)
@@ -336,8 +338,9 @@ class PushTExpert:
         top = max(sc for sc, _ in scored)
         pool = [i for sc, i in scored if sc >= cfg.choice_slack * top]
         i = pool[int(self._rng.integers(len(pool)))]
-        s_w = geometry.to_world(staging[i][None], pose)[0]
-        return _Push(s_w, rotate(dirs[i], pose[2]), speed, depth, geometry.to_world(paths[i], pose), pose)
+        s_w, path = geometry.to_world(staging[i][None], pose)[0], paths[i]
+        assert path is not None  # only candidates with a path were scored
+        return _Push(s_w, rotate(dirs[i], pose[2]), speed, depth, geometry.to_world(path, pose), pose)
 
     def _commit(self, snap: SimSnapshot, goal: np.ndarray, push: _Push) -> list[np.ndarray]:
         """Choose the push length by exact rollouts from the true state; [] if no length helps."""
@@ -357,24 +360,3 @@ class PushTExpert:
                 if val < best_val:
                     best, best_val = targets, val
         return best
-
-
-def evaluate_expert(seeds: Sequence[int], goal: str = "fixed", config: ExpertConfig = ExpertConfig(),
-                    max_steps: int = 300, on_episode: Callable[[dict], None] | None = None) -> dict:
-    """Closed-loop score of the expert: max reward per episode, stopping at success."""
-    from gpc.tasks.pusht.record import RecordConfig, record_episode
-
-    record = RecordConfig(max_steps=max_steps, stop_on_success=True, images=False, goal=goal)
-    res: dict = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
-    for seed in res["seeds"]:
-        t0 = time.perf_counter()
-        _, stats = record_episode(PushTExpert(config), seed, record)
-        row = {"scores": stats.score, "successes": stats.success, "steps": stats.steps,
-               "seconds": time.perf_counter() - t0}
-        for key, value in row.items():
-            res[key].append(value)
-        if on_episode:
-            on_episode(row)
-    res.update(mean_score=float(np.mean(res["scores"])), success_rate=float(np.mean(res["successes"])),
-               median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
-    return res

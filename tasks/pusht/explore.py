@@ -113,6 +113,7 @@ class ExplorePolicy:
     # ------------------------------------------------------------------ perturbed expert
     def _perturbed(self, sim: PushTSim, goal_pose: np.ndarray, agent: np.ndarray, pose: np.ndarray) -> np.ndarray:
         cfg = self.config
+        assert self._carrot is not None  # set by act before any planning
         if self._wander_left == 0 and self._rng.random() < cfg.perturb_prob:
             self._wander_left = int(self._rng.integers(cfg.perturb_steps[0], cfg.perturb_steps[1] + 1))
             self._speed = self._draw(cfg.wander_speed)
@@ -134,6 +135,7 @@ class ExplorePolicy:
 
     def _wander(self, agent: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """One step of a smooth random motion that keeps steering into the block."""
+        assert self._carrot is not None  # set by act before any planning
         to_aim = self._aim - self._carrot
         if np.linalg.norm(to_aim) < 2.0 * self._speed:
             self._aim = self._aim_point(pose)
@@ -153,8 +155,9 @@ class ExplorePolicy:
         if self._path is None:
             self._plan_push(pose)
         if self._path is None:  # nowhere reachable from here: back away and look again
+            assert self._carrot is not None  # set by act before any planning
             here = to_block(self._carrot, pose)
-            away = geometry.to_world(escape(here, clearance(here) + 20.0)[None], pose)[0]
+            away = geometry.to_world(escape(here, float(clearance(here)) + 20.0)[None], pose)[0]
             step = away - self._carrot
             return self._carrot + step * min(1.0, self.config.approach_speed[0] / (np.linalg.norm(step) + 1e-9))
         self._path_s, target = follow(self._path, self._path_s, self._speed, agent, self.config.max_lead)
@@ -165,6 +168,7 @@ class ExplorePolicy:
     def _plan_push(self, pose: np.ndarray) -> None:
         """Pick a random contact (edges extended past their corners) and direction; prefer near ones."""
         cfg, rng = self.config, self._rng
+        assert self._carrot is not None  # set by act before any planning
         n = 8
         contact, normal = sample_contacts(rng, n, overhang=0.15)
         d = rotate(-normal, rng.uniform(-cfg.max_tilt, cfg.max_tilt, n))
@@ -187,8 +191,9 @@ class ExplorePolicy:
             self._path = None
             return
         j = int(np.argmin(lengths * rng.uniform(1.0, 2.0, len(lengths))))
-        i = idx[j]
-        self._path, self._path_s = geometry.to_world(paths[j], pose), 0.0
+        i, path = idx[j], paths[j]
+        assert path is not None  # finite length, so a path exists
+        self._path, self._path_s = geometry.to_world(path, pose), 0.0
         self._speed = self._draw(cfg.approach_speed)
         s_w, d_w = world[i], rotate(d[i], pose[2])
         speed = self._draw(cfg.push_speed)

@@ -84,7 +84,7 @@ def restore_divergence(states: np.ndarray, actions: np.ndarray, episode_ends: np
     ends = np.asarray(episode_ends, dtype=np.int64)
     starts = np.concatenate([[0], ends[:-1]])
     rng = np.random.default_rng(seed)
-    gaps = []
+    gaps: list[float] = []
     while len(gaps) < samples:
         e = int(rng.integers(len(ends)))
         if ends[e] - starts[e] <= horizon + 2:
