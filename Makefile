@@ -219,10 +219,11 @@ $(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 	touch $@
 
 # One eval per controller (NAME, results dir, prerequisites, gpc eval arguments), each skipped
-# once its summary is newer than the checkpoints it used.
+# once its summary is newer than the checkpoints it used; a stopped eval resumes its saved groups,
+# results of other checkpoints are replaced (--resume --overwrite).
 define eval_rule
 $(2)/$(1)/summary.json: $(3)
-	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1)
+	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1) --resume --overwrite
 endef
 $(eval $(call eval_rule,bc,$(RESULTS),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL)))
 # The ground-truth ceiling uses no learned world model, so only the policy makes it stale.

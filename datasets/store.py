@@ -14,8 +14,8 @@ append that never landed, and is dropped the same way.
 
 from __future__ import annotations
 
+import json
 import os
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, cast
@@ -38,6 +38,22 @@ def _array(node: zarr.Array | zarr.Group) -> zarr.Array:
 def _group(node: zarr.Array | zarr.Group) -> zarr.Group:
     """A group node (``data/``, ``meta/``), for the same reason as :func:`_array`."""
     return cast(zarr.Group, node)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0][:200]}" if text else type(exc).__name__
+
+
+def _bad_metadata(path: Path) -> Path | None:
+    """The first metadata file under ``path`` that is not valid JSON (what a zarr open error leaves unsaid)."""
+    for meta in sorted(path.rglob("*")):
+        if meta.name in (".zgroup", ".zarray", ".zattrs", "zarr.json"):
+            try:
+                json.loads(meta.read_text())
+            except (OSError, ValueError):
+                return meta
+    return None
 
 
 def _compressor() -> numcodecs.Blosc:
@@ -65,20 +81,18 @@ class EpisodeStore:
         try:
             group = zarr.open_group(str(path), mode="r+" if writable else "r")
         except Exception as exc:  # zarr raises several types for unreadable metadata
-            raise DataError(f"{path}: unreadable Zarr store ({exc})") from None
+            raise DataError(f"{_bad_metadata(path) or path}: unreadable Zarr store ({_first_line(exc)})") from None
         store = cls(path, group, writable)
         if writable:
             store._repair()
         return store
 
     @classmethod
-    def create(cls, path: str | Path, attrs: dict[str, Any], overwrite: bool = False) -> EpisodeStore:
-        """A new empty store carrying ``attrs`` (provenance); refuses to replace data unless told."""
+    def create(cls, path: str | Path, attrs: dict[str, Any]) -> EpisodeStore:
+        """A new empty store carrying ``attrs`` (provenance); it never replaces anything already there."""
         path = Path(path)
         if path.exists():
-            if not overwrite:
-                raise DataError(f"{path}: already exists (pass --overwrite to replace it)")
-            shutil.rmtree(path) if path.is_dir() else path.unlink()
+            raise DataError(f"{path}: already exists; gpc writes a new store only where nothing is")
         path.parent.mkdir(parents=True, exist_ok=True)
         group = zarr.open_group(str(path), mode="w", zarr_format=2)
         group.create_group("data")
@@ -94,7 +108,10 @@ class EpisodeStore:
             raise DataError(f"{self.path}: missing key meta/episode_ends")
         if "data" not in self.root:
             raise DataError(f"{self.path}: missing group data/")
-        ends = np.asarray(_array(self.root["meta/episode_ends"])[:], dtype=np.int64)
+        raw = _array(self.root["meta/episode_ends"])
+        if not np.issubdtype(raw.dtype, np.integer):
+            raise DataError(f"{self.path}: meta/episode_ends holds {raw.dtype} values, not integers")
+        ends = np.asarray(self._decoded(raw, "meta/episode_ends", 0, raw.shape[0]), dtype=np.int64)
         if ends.size and ends[-1] == 0 and (ends.size == 1 or ends[-2] > 0):
             # Grown but not yet filled: a writer died between zarr's resize and its chunk write.
             ends = ends[:-1]
@@ -155,7 +172,21 @@ class EpisodeStore:
     def read(self, key: str, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Steps ``[start, stop)`` of ``key``, never past the last whole episode."""
         stop = self.n_steps if stop is None else min(stop, self.n_steps)
-        return np.asarray(self.array(key)[start:stop])
+        return self._decoded(self.array(key), f"data/{key}", start, stop)
+
+    def _decoded(self, arr: zarr.Array, name: str, start: int, stop: int) -> np.ndarray:
+        """``arr[start:stop]``; a chunk that cannot be decoded (truncated, corrupt) is named in one line."""
+        try:
+            return np.asarray(arr[start:stop])
+        except Exception as exc:  # numcodecs and zarr raise many types for a damaged chunk
+            step = int(arr.chunks[0]) if arr.chunks else 1
+            for first in range(start - start % step, stop, step):  # find the chunk that fails
+                try:
+                    arr[first : min(first + step, arr.shape[0])]
+                except Exception:
+                    raise DataError(f"{self.path}: {name} chunk {first // step} (steps {first}-"
+                                    f"{min(first + step, arr.shape[0]) - 1}) cannot be decoded ({_first_line(exc)})") from None
+            raise DataError(f"{self.path}: {name} cannot be read ({_first_line(exc)})") from None
 
     def episode_slice(self, i: int) -> slice:
         if not -self.n_episodes <= i < self.n_episodes:

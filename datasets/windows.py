@@ -45,6 +45,8 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str], check_finite: 
             raise DataError(f"{path}: holds no episodes")
         for key in keys:
             arr = store.read(key)
+            if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+                raise DataError(f"{path}: data/{key} holds {arr.dtype} values, not numbers")
             if check_finite and np.issubdtype(arr.dtype, np.floating):
                 if not np.all(np.isfinite(arr)):
                     raise DataError(f"{path}: data/{key} holds NaN or inf")

@@ -1,4 +1,8 @@
-"""Bad input becomes one line on stderr and exit code 2, never a traceback."""
+"""Bad input becomes one line on stderr and exit code 2, never a traceback; a stop says what was kept.
+
+Exit codes: 0 done, 2 bad input or an operating-system error (the line names the path), 130 / 143
+stopped by SIGINT / SIGTERM (the line says what was kept and how to go on).
+"""
 
 from __future__ import annotations
 
@@ -10,12 +14,23 @@ from typing import Any, NoReturn
 import typer
 from typer.core import TyperGroup
 
-USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, KeyError, NotADirectoryError, PermissionError)
+from gpc.harness.interrupts import Interrupted
+
+USER_ERRORS = (ValueError, KeyError, OSError)
 
 
-def fail(message: str) -> NoReturn:
-    print(f"gpc: error: {message}", file=sys.stderr)
-    raise SystemExit(2)
+def fail(message: str, code: int = 2, kind: str = "error") -> NoReturn:
+    print(f"gpc: {kind}: {message}", file=sys.stderr)
+    raise SystemExit(code)
+
+
+def one_line(exc: BaseException) -> str:
+    """The first line of an error, with the path an OS error concerns (``[Errno 30] ...`` names none)."""
+    if isinstance(exc, OSError) and exc.strerror:
+        where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        return f"{where}: {exc.strerror}" if where else exc.strerror
+    msg = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
+    return msg.strip().splitlines()[0] if msg.strip() else type(exc).__name__
 
 
 class OneLineErrors(TyperGroup):
@@ -27,7 +42,7 @@ class OneLineErrors(TyperGroup):
         try:
             return super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
         except typer.Abort:
-            fail("aborted")
+            fail("stopped before finishing; nothing was left half written", 130, "stopped by SIGINT")
         except typer.Exit as exc:
             raise SystemExit(exc.exit_code) from None
         except typer.TyperException as exc:  # usage: unknown option, bad value, missing argument
@@ -39,5 +54,6 @@ class OneLineErrors(TyperGroup):
         except USER_ERRORS as exc:
             if os.environ.get("GPC_DEBUG"):
                 raise
-            msg = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
-            fail(msg.splitlines()[0] if msg else type(exc).__name__)
+            fail(one_line(exc))
+        except Interrupted as stop:
+            fail(stop.kept or "stopped; nothing was left half written", stop.exit_code, f"stopped by {stop.name}")

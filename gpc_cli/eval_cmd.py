@@ -32,6 +32,8 @@ Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short ch
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
 MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
 Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
+Resume = Annotated[bool, typer.Option("--resume", help="Finish the run this --out holds (its saved groups are not run again).")]
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace the results this --out holds (with --resume: only if they are another run's).")]
 
 # What every closed-loop command takes to build its controller (received as ``planning``).
 PLANNING_OPTIONS = (
@@ -78,28 +80,32 @@ def eval_run(
     goal: Goal = "fixed",
     max_steps: MaxSteps = 300,
     videos: int = typer.Option(0, "--videos", min=0, help="Write MP4s (planned chunk and, for planners, the predicted futures) for the first N seeds."),
+    resume: Resume = False,
+    overwrite: Overwrite = False,
 ) -> None:
     """Closed-loop evaluation of the frozen policy (BC) or a planner over it, on test seeds."""
     from rich.progress import Progress
 
     from gpc.cli.reports import parse_seeds
-    from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
+    from gpc.harness.evaluation import EvalConfig, write_spread
+    from gpc.harness.results import check_out, run_into
 
     assert planning is not None  # with_planning_options passes them
-    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
+    check_out(out)
     samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
+    test_seeds = tuple(parse_seeds(seeds))
+    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     results = []
     for s in samplings:
-        config = EvalConfig(seeds=tuple(parse_seeds(seeds)), task=recipe.task, goal=goal, max_steps=max_steps, batch=batch,
+        config = EvalConfig(seeds=test_seeds, task=recipe.task, goal=goal, max_steps=max_steps, batch=batch,
                             workers=workers, threads=threads, sampling_seed=s,
                             video_dir=str(out / "videos") if videos and s == samplings[0] else None,
                             videos=videos if s == samplings[0] else 0)
         with Progress() as bar:
             tid = bar.add_task(f"{recipe.label} (sampling seed {s})", total=len(config.seeds))
-            result = evaluate(recipe, config, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
-        result["controller"] = recipe.summary()
+            result = run_into(out / f"sampling-seed-{s}" if len(samplings) > 1 else out, recipe, config, resume, overwrite,
+                              on_group=lambda g: bar.advance(tid, len(g["episodes"])))
         results.append(result)
-        write_results(result, out / f"sampling-seed-{s}" if len(samplings) > 1 else out, f"{recipe.label}: {checkpoint}")
     if len(samplings) > 1:
         write_spread(results, out, f"{recipe.label}: {checkpoint}")
     typer.echo((out / "summary.md").read_text())
@@ -115,19 +121,20 @@ def plan_one(
     goal: Goal = "fixed",
     max_steps: MaxSteps = 300,
     threads: Threads = 2,
+    overwrite: Overwrite = False,
 ) -> None:
     """Run one planner on one seed; the MP4 shows, per decision, the K predicted futures and their rewards."""
-    from gpc.harness.evaluation import EvalConfig, evaluate, write_results
+    from gpc.harness.evaluation import EvalConfig
+    from gpc.harness.results import check_out, run_into
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
     assert planning is not None  # with_planning_options passes them
+    check_out(out)
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), task=recipe.task, goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
-    result = evaluate(recipe, config)
-    result["controller"] = recipe.summary()
-    write_results(result, out, f"{recipe.label}: {checkpoint}, seed {seed}")
+    result = run_into(out, recipe, config, overwrite=overwrite)
     row = result["episodes"][0]
     typer.echo(f"seed {seed}: score {row['score']:.3f}, success {row['success']}, {row['steps']} steps; "
                f"wrote {out / f'seed{seed}.mp4'} and {out / 'summary.md'}")

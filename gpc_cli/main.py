@@ -133,7 +133,10 @@ def eval_expert(
 
 
 def main() -> None:
-    app()
+    from gpc.harness.interrupts import deferred_signals
+
+    with deferred_signals():  # Ctrl-C and SIGTERM stop at the next safe point, with what was kept
+        app()
 
 
 if __name__ == "__main__":

@@ -1,7 +1,5 @@
-"""`gpc train reward` and `gpc eval reward`: thin Typer commands over ``gpc.models.rewards.learned`` / ``reward_training``.
-
-``reward_app`` holds both as ``train`` and ``eval``; the root CLI wires them.
-"""
+"""`gpc train reward` and `gpc eval reward`: options parsed, then ``gpc.harness.training.train_component`` and
+``gpc.harness.model_eval.evaluate_reward``; the root CLI wires both."""
 
 from __future__ import annotations
 
@@ -33,8 +31,8 @@ def train(
     options: dict | None = None,
 ) -> None:
     """Train the image reward's pose predictor on the frames of Zarr stores, labelled by their recorded states."""
+    from gpc.harness.training import train_component
     from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
-    from gpc.models.training import trainer
 
     chosen = reward_profile(profile, get_task(task).layout)
     config = chosen.config
@@ -44,7 +42,7 @@ def train(
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
     assert options is not None  # with_run_options passes the Lightning options
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(trainer.train(RewardPredictorModule, config, dataset, run))
+    echo_result(train_component(RewardPredictorModule, config, dataset, run))
 
 
 @reward_app.command("eval")

@@ -1,4 +1,4 @@
-"""`gpc train ...`: thin Typer commands over ``gpc.models.training.trainer``."""
+"""`gpc train policy`: options parsed, then ``gpc.harness.training.train_component`` (the group holds the others)."""
 
 from __future__ import annotations
 
@@ -30,9 +30,9 @@ def policy(
     options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
+    from gpc.harness.training import train_component
     from gpc.models.policy.config import policy_profile
     from gpc.models.policy.module import PolicyModule
-    from gpc.models.training import trainer
 
     if goal not in ("fixed", "random"):
         raise typer.BadParameter(f"goal {goal!r}: use fixed or random", param_hint="--goal")
@@ -44,7 +44,7 @@ def policy(
         policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
     assert options is not None  # with_run_options passes the Lightning options
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(trainer.train(PolicyModule, policy_config, dataset, run))
+    echo_result(train_component(PolicyModule, policy_config, dataset, run))
 
 
 if __name__ == "__main__":  # `python -m gpc.cli.train policy ...` (DDP re-launches this way)

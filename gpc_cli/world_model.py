@@ -1,9 +1,5 @@
-"""`gpc train world-model` and `gpc eval world-model`: thin Typer commands over ``gpc.models.world_model_*``
-and ``gpc.models.world_models.visual*``.
-
-``world_model_app`` holds both as ``train`` and ``eval``; the root CLI wires them. The eval
-command fills the visual readout (block and agent colours, the T's axis) from the task's renderer.
-"""
+"""`gpc train world-model` and `gpc eval world-model`: options parsed, then ``gpc.harness.training.train_component``
+and ``gpc.harness.model_eval.evaluate_world_model``; the root CLI wires both."""
 
 from __future__ import annotations
 
@@ -39,7 +35,7 @@ def train(
     options: dict | None = None,
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
-    from gpc.models.training import trainer
+    from gpc.harness.training import train_component
     from gpc.models.world_models.config import FEEDBACK, OBS_TYPES, VisualWorldModelConfig, world_model_profile
     from gpc.models.world_models.module import WorldModelModule, find_phase_one
 
@@ -63,7 +59,7 @@ def train(
         init = find_phase_one(out)
         typer.echo(f"phase 2 starts from {init}")
     run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(trainer.train(WorldModelModule, config, dataset, run, init=init))
+    echo_result(train_component(WorldModelModule, config, dataset, run, init=init))
 
 
 @world_model_app.command("eval")

@@ -10,8 +10,8 @@ only; ``tests/toy_task.py`` defines a second task with it and runs every planner
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -19,6 +19,7 @@ import numpy as np
 from gpc.datasets.layout import TaskLayout
 
 COLLECTORS = ("expert", "explore")
+STATE_KEY, ACTION_KEY, GOAL_KEY, IMAGE_KEY = "state", "action", "goal", "img"  # the data keys every component shares
 
 
 class TaskEnv(Protocol):
@@ -65,6 +66,7 @@ class Task:
     draw_futures: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, futures, scores, chosen)
     pose_coverage: Callable[[np.ndarray], float] | None = None  # states -> share of the object's pose space visited
     check_replay: Callable[..., dict[str, Any]] | None = None  # recorded store -> how closely the simulator replays it
+    row_shapes: Mapping[str, tuple[int, ...]] = field(default_factory=dict)  # one step's shape per stored key, beyond the layout's
 
     def __post_init__(self) -> None:
         if not self.goal_modes or self.goal_modes[0] != "fixed":
@@ -73,6 +75,12 @@ class Task:
     @property
     def name(self) -> str:
         return self.layout.name
+
+    def row_shape(self, key: str) -> tuple[int, ...] | None:
+        """The shape one step of ``key`` must have in this task's stores (None: not fixed, e.g. image sizes)."""
+        known = {STATE_KEY: (self.layout.state.dim,), ACTION_KEY: (self.layout.action.dim,),
+                 GOAL_KEY: (len(self.layout.target.goal),), **self.row_shapes}
+        return known.get(key)
 
     def check_goal(self, goal: str) -> None:
         if goal not in self.goal_modes:

@@ -265,7 +265,7 @@ def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
         assert stats["queries"] == decisions and stats["fell_back"] == decisions - 1
         assert stats["fallbacks"]["malformed"] == decisions - 1
         assert "fell back: 5 of 6" in (tmp_path / "vlm" / "summary.md").read_text()
-        again = CliRunner().invoke(app, args + ["--vlm-base-url", server.base_url])
+        again = CliRunner().invoke(app, args + ["--vlm-base-url", server.base_url, "--overwrite"])
         assert again.exit_code == 0, again.output
         assert len(server.requests) == decisions  # every answer came from the cache
     res = CliRunner().invoke(app, args[:-2] + ["--out", str(tmp_path / "v2")])

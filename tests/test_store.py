@@ -61,13 +61,13 @@ def test_bad_appends_are_refused_and_leave_the_store_intact(tmp_path):
     assert again.n_episodes == 1 and again.n_steps == 4
 
 
-def test_create_refuses_to_replace_without_overwrite(tmp_path):
+def test_create_never_replaces_what_is_there(tmp_path):
+    """Replacing is the collector's business (staged beside, then renamed): a store is only ever created anew."""
     path = tmp_path / "s.zarr"
     EpisodeStore.create(path, {}).append_episode(_episode(0, 2))
-    with pytest.raises(DataError, match="--overwrite"):
+    with pytest.raises(DataError, match="already exists"):
         EpisodeStore.create(path, {})
     assert EpisodeStore.open(path).n_episodes == 1
-    assert EpisodeStore.create(path, {}, overwrite=True).n_episodes == 0
 
 
 @pytest.mark.parametrize("make", ["missing", "file", "plain_dir", "no_ends", "short_data", "bad_ends"])

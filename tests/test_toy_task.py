@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -49,6 +50,32 @@ def test_the_toy_task_is_registered_and_its_stores_say_so(trained):
     assert PolicyModule.load_from_checkpoint(trained["policy"]).config.task == "reach"
     config = WorldModelModule.load_from_checkpoint(trained["wm"]).config
     assert config.dynamics.state_dim == 2 and config.dynamics.object_frame == ()  # no angle: world coordinates
+
+
+def test_worker_processes_and_commands_know_the_toy_task(trained, tmp_path, monkeypatch):
+    """A task registered by hand reaches spawned workers (collection and evaluation give what one process gives),
+    and one named in $GPC_TASKS reaches the `gpc` command."""
+    one = collect(CollectJob(task="reach", out=tmp_path / "one.zarr", episodes=4, images=False, max_steps=40))
+    two = collect(CollectJob(task="reach", out=tmp_path / "two.zarr", episodes=4, images=False, max_steps=40, workers=2))
+    from gpc.datasets.store import EpisodeStore
+
+    a, b = EpisodeStore.open(tmp_path / "one.zarr"), EpisodeStore.open(tmp_path / "two.zarr")
+    assert one.written == two.written == 4 and (a.read("state") == b.read("state")).all()
+    config = EvalConfig(seeds=SEEDS, task="reach", max_steps=20, batch=2)
+    recipe = make_recipe(trained["policy"], "rank", world_model=str(trained["wm"]), k=3)
+    alone, spread = evaluate(recipe, config), evaluate(recipe, dataclasses.replace(config, workers=2))
+    assert alone["episodes"] == spread["episodes"]
+    from typer.testing import CliRunner
+
+    from gpc.cli.main import app
+
+    monkeypatch.setenv("GPC_TASKS", "toy_task:REACH")
+    monkeypatch.setattr("gpc.tasks._discovered", [])
+    monkeypatch.setattr("gpc.tasks._REGISTRY", {})
+    res = CliRunner().invoke(app, ["collect", "--task", "reach", "--out", str(tmp_path / "cli.zarr"), "--episodes", "2",
+                                   "--no-images", "--max-steps", "30"])
+    assert res.exit_code == 0, res.output
+    assert EpisodeStore.open(tmp_path / "cli.zarr").attrs["task"] == "reach"
 
 
 def test_the_world_model_learns_the_toy_dynamics(trained):

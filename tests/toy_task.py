@@ -124,16 +124,28 @@ def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
     return np.array([max(reward_of(s) for s in states[a:b]) for a, b in zip(starts, episode_ends.astype(int))])
 
 
+def record_keys(images: bool, goal: str) -> list[str]:
+    return sorted(["action", "state"] + (["img"] if images else []))
+
+
+def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
+    return {"kind": kind, "max_steps": max_steps}
+
+
+def env_params(goal: str, max_steps: int) -> dict[str, Any]:
+    return {"id": "toy/Reach-v0", "goal": goal, "max_steps": max_steps}
+
+
 REACH = Task(
     layout=LAYOUT,
     description="move the blue dot onto the green disc",
     goal_modes=("fixed",),
     make_env=ReachEnv,
     observe=observe,  # type: ignore[arg-type]
-    record_keys=lambda images, goal: sorted(["action", "state"] + (["img"] if images else [])),
+    record_keys=record_keys,
     record=record,
-    collector_params=lambda kind, max_steps: {"kind": kind, "max_steps": max_steps},
-    env_params=lambda goal, max_steps: {"id": "toy/Reach-v0", "goal": goal, "max_steps": max_steps},
+    collector_params=collector_params,
+    env_params=env_params,
     simulator=ReachSimulator,
     sim_key="sim",
     render_state=render_state,

@@ -7,7 +7,10 @@ same command resumes: seeds already in the store are skipped.
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
+import os
+import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
@@ -19,9 +22,11 @@ import numpy as np
 
 from gpc import __version__
 from gpc.datasets.errors import DataError
+from gpc.datasets.locks import exclusive
 from gpc.datasets.store import EpisodeStore
-from gpc.tasks import get_task
-from gpc.tasks.base import COLLECTORS
+from gpc.harness import interrupts
+from gpc.tasks import get_task, register_task, user_tasks
+from gpc.tasks.base import COLLECTORS, Task
 
 
 @dataclass(frozen=True)
@@ -83,49 +88,109 @@ def _run_one(args: tuple[str, str, int, str, bool, int]) -> tuple[dict[str, np.n
     return data, asdict(stats)
 
 
-def open_for_job(job: CollectJob) -> EpisodeStore:
-    """Create the store, or reopen it for resuming if it was made by the same command."""
-    wanted = job.provenance()
-    if job.out.exists() and not job.overwrite:
-        store = EpisodeStore.open(job.out, writable=True)
-        have, want = {k: store.attrs.get(k) for k in wanted}, _plain(wanted)
-        if have != want:
-            diff = [k for k in wanted if have[k] != want[k]]
-            raise DataError(
-                f"{job.out}: holds data of another kind ({', '.join(diff)} differ); "
-                "choose another --out or pass --overwrite"
-            )
-        return store
+def _matching(store: EpisodeStore, wanted: dict[str, Any], out: Path) -> None:
+    """Resuming needs the store to have been made by the same command (task, env, collector, keys)."""
+    have, want = {k: store.attrs.get(k) for k in wanted}, _plain(wanted)
+    if have != want:
+        diff = [k for k in wanted if have[k] != want[k]]
+        raise DataError(f"{out}: holds data of another kind ({', '.join(diff)} differ); choose another --out or pass --overwrite")
+
+
+def _ours(out: Path) -> None:
+    """``--overwrite`` replaces only a store this project wrote: its ``gpc_format`` record proves it."""
+    if not out.is_dir():
+        raise DataError(f"{out}: is a file, not a store gpc wrote; refusing to replace it (remove it yourself or choose another --out)")
+    try:
+        store = EpisodeStore.open(out)
+    except DataError:
+        raise DataError(f"{out}: is not a store gpc wrote; refusing to replace it (remove it yourself or choose another --out)") from None
+    if "gpc_format" not in store.attrs:
+        raise DataError(f"{out}: was not written by gpc (no gpc_format record); refusing to replace it "
+                        "(remove it yourself or choose another --out)")
+
+
+def _staging(out: Path) -> tuple[Path, Path]:
+    """Where a replacement is written before it takes the store's place, and where the old store waits meanwhile."""
+    return out.parent / f".{out.name}.new", out.parent / f".{out.name}.old"
+
+
+def _finish_swap(out: Path) -> None:
+    """Complete a replacement a crash cut between its two renames (the old store is never lost)."""
+    _, old = _staging(out)
+    if old.exists():
+        if out.exists():
+            shutil.rmtree(old)
+        else:
+            os.rename(old, out)
+
+
+def open_for_job(job: CollectJob) -> tuple[EpisodeStore, bool]:
+    """The store to write and whether it is a replacement being staged beside the old one.
+
+    A store of the same command is reopened to resume (checked read-only first: refusing changes
+    nothing); ``--overwrite`` stages a new store beside one gpc wrote and leaves anything else alone.
+    """
+    wanted, out = job.provenance(), Path(job.out)
     attrs = {**wanted, "gpc_version": __version__, "created": datetime.now(timezone.utc).isoformat()}
-    return EpisodeStore.create(job.out, attrs, overwrite=job.overwrite)
+    if out.exists() and not job.overwrite:
+        if not out.is_dir():
+            raise DataError(f"{out}: is a file, not a store; choose another --out")
+        _matching(EpisodeStore.open(out), wanted, out)
+        return EpisodeStore.open(out, writable=True), False
+    if out.exists():
+        _ours(out)
+        staging, _ = _staging(out)
+        if staging.exists():
+            shutil.rmtree(staging)  # an earlier replacement that was stopped: start it again
+        return EpisodeStore.create(staging, attrs), True
+    return EpisodeStore.create(out, attrs), False
+
+
+def _swap(out: Path) -> None:
+    """The staged store takes the old one's place: two renames, then the old store goes."""
+    staging, old = _staging(out)
+    os.rename(out, old)
+    os.rename(staging, out)
+    shutil.rmtree(old)
 
 
 def _plain(value: dict[str, Any]) -> dict[str, Any]:
     """Round-trip through JSON types, as Zarr attributes store them."""
-    import json
-
     return json.loads(json.dumps(value))
 
 
 def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
             on_episode: Callable[[dict], None] | None = None) -> CollectSummary:
-    """Collect the job's missing seeds into its store.
+    """Collect the job's missing seeds into its store, one writer at a time.
 
     ``on_start`` gets the number of seeds already present; ``on_episode`` each new episode's stats.
+    A stop (``Interrupted``) between episodes keeps every whole episode written so far.
     """
-    store = open_for_job(job)
-    present = store.episode_seeds()
-    done = set() if present is None else {int(s) for s in present}
-    todo = [s for s in job.seeds if s not in done]
-    if on_start:
-        on_start(len(job.seeds) - len(todo))
-    args = [(job.task, job.kind, s, job.goal, job.images, job.max_steps) for s in todo]
-    stats: list[dict] = []
-    for data, st in _results(args, job.workers):
-        store.append_episode(data, seed=st["seed"], score=st["score"])
-        stats.append(st)
-        if on_episode:
-            on_episode(st)
+    out = Path(job.out)
+    with exclusive(out, "store"):
+        _finish_swap(out)
+        store, replacing = open_for_job(job)
+        present = store.episode_seeds()
+        done = set() if present is None else {int(s) for s in present}
+        todo = [s for s in job.seeds if s not in done]
+        if on_start:
+            on_start(len(job.seeds) - len(todo))
+        args = [(job.task, job.kind, s, job.goal, job.images, job.max_steps) for s in todo]
+        stats: list[dict] = []
+        try:
+            for data, st in _results(args, job.workers):
+                store.append_episode(data, seed=st["seed"], score=st["score"])
+                stats.append(st)
+                if on_episode:
+                    on_episode(st)
+                interrupts.check()
+        except interrupts.Interrupted as stop:
+            stop.kept = (f"{out} is unchanged (its replacement was stopped; run the same command to start it again)"
+                         if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")
+            raise
+        if replacing:
+            _swap(out)
+            store = EpisodeStore.open(out)
     scores = np.array([s["score"] for s in stats]) if stats else np.zeros(0)
     return CollectSummary(
         path=str(job.out), written=len(stats), skipped=len(job.seeds) - len(todo),
@@ -137,11 +202,17 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
     )
 
 
+def _init_worker(tasks: Sequence[Task]) -> None:
+    interrupts.ignore_in_worker()
+    for task in tasks:  # tasks the parent registered by hand
+        register_task(task)
+
+
 def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
     if workers == 1 or len(args) <= 1:
         yield from map(_run_one, args)
         return
-    with mp.get_context("spawn").Pool(min(workers, len(args))) as pool:
+    with mp.get_context("spawn").Pool(min(workers, len(args)), initializer=_init_worker, initargs=(user_tasks(),)) as pool:
         yield from pool.imap(_run_one, args, chunksize=1)
 
 

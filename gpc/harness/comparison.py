@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from gpc.datasets.errors import DataError
+from gpc.harness.files import write_atomic
 
 # The paper's tables (100 seeds; vision: IoU score), keyed by our controller labels.
 PAPER = {
@@ -175,8 +176,8 @@ def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | 
         )
     md = "\n".join(lines) + "\n\ns/decision: median seconds per decision per episode (a lockstep call divided by its episodes).\n"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(md)
-    out.with_suffix(".json").write_text(json.dumps(table, indent=2))
+    write_atomic(out, md)
+    write_atomic(out.with_suffix(".json"), json.dumps(table, indent=2))
     return md
 
 

@@ -24,8 +24,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from gpc.harness import interrupts
+from gpc.harness.files import write_atomic
 from gpc.models.planning.protocols import Controller, Plan
-from gpc.tasks import get_task
+from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import Task
 
 IMAGE_KEY = "img"
@@ -94,6 +96,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         t0 = time.perf_counter()
         plan = controller.plan(obs, gens)
         latencies.append(time.perf_counter() - t0)
+        interrupts.check()  # between decisions: the group is given up whole, never half recorded
         for name, sec in plan.seconds.items():
             parts[name] = parts.get(name, 0.0) + sec
         for i, env in enumerate(envs):
@@ -156,27 +159,44 @@ def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(factory: Callable[[], Controller], threads: int) -> None:
+def _init_worker(factory: Callable[[], Controller], threads: int, worker: bool = False, tasks: Sequence[Task] = ()) -> None:
+    if worker:
+        interrupts.ignore_in_worker()
+    for task in tasks:  # tasks the parent registered by hand
+        register_task(task)
     torch.set_num_threads(threads)
-    _WORKER["controller"] = factory()
+    try:
+        _WORKER["controller"] = factory()
+    except Exception as exc:  # raised by the first job instead: a failing initializer makes a Pool respawn forever
+        _WORKER["error"] = exc
 
 
 def _work(args: tuple[tuple[int, ...], EvalConfig]) -> dict[str, Any]:
     seeds, config = args
+    if "error" in _WORKER:
+        raise _WORKER["error"]
     with torch.no_grad():  # not inference_mode: gradient planners re-enable autograd inside
         return run_group(_WORKER["controller"], seeds, config)
 
 
 def evaluate(factory: Callable[[], Controller], config: EvalConfig,
-             on_group: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-    """Run every seed; ``factory`` (picklable) builds the controller inside each process."""
+             on_group: Callable[[dict[str, Any]], None] | None = None,
+             finished: Sequence[dict[str, Any]] = ()) -> dict[str, Any]:
+    """Run every seed; ``factory`` (picklable) builds the controller inside each process.
+
+    ``finished``: groups an earlier, stopped run of the same evaluation completed (``gpc.harness.results``);
+    their seeds are not run again. A stop (``Interrupted``) comes between two groups' decisions.
+    """
     t0 = time.perf_counter()
-    jobs = [(g, config) for g in config.groups()]
-    groups: list[dict[str, Any]] = []
-    for group in _map(factory, jobs, config):
-        groups.append(group)
-        if on_group:
-            on_group(group)
+    have = {tuple(r["seed"] for r in g["episodes"]) for g in finished}
+    jobs = [(g, config) for g in config.groups() if tuple(int(s) for s in g) not in have]
+    groups: list[dict[str, Any]] = list(finished)
+    if jobs:
+        for group in _map(factory, jobs, config):
+            groups.append(group)
+            if on_group:
+                on_group(group)
+            interrupts.check()
     return summarize(groups, time.perf_counter() - t0, config)
 
 
@@ -190,7 +210,7 @@ def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> I
             torch.set_num_threads(previous)
         return
     ctx = mp.get_context("spawn")
-    with ctx.Pool(min(config.workers, len(jobs)), initializer=_init_worker, initargs=(factory, config.threads)) as pool:
+    with ctx.Pool(min(config.workers, len(jobs)), initializer=_init_worker, initargs=(factory, config.threads, True, user_tasks())) as pool:
         yield from pool.imap(_work, jobs, chunksize=1)
 
 
@@ -230,8 +250,8 @@ def _latency(values: list[float]) -> dict[str, float]:
 def write_results(result: dict[str, Any], out: Path, title: str) -> None:
     """``episodes.json`` (per seed), ``summary.json`` and ``summary.md`` in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "episodes.json").write_text(json.dumps(result["episodes"], indent=1))
-    (out / "summary.json").write_text(json.dumps({k: v for k, v in result.items() if k != "episodes"}, indent=2))
+    write_atomic(out / "episodes.json", json.dumps(result["episodes"], indent=1))
+    write_atomic(out / "summary.json", json.dumps({k: v for k, v in result.items() if k != "episodes"}, indent=2))
     c, d = result["call_latency_s"], result["decision_latency_s"]
     seeds = result["config"]["seeds"]
     md = (
@@ -246,7 +266,7 @@ def write_results(result: dict[str, Any], out: Path, title: str) -> None:
         md += (f"\nReward queries: {stats.get('queries', 0)} ({stats.get('cache_hits', 0)} answered from the cache); "
                f"decisions that fell back: {stats['fell_back']} of {stats.get('decisions', 0)} "
                f"({', '.join(f'{k} {v}' for k, v in stats.get('fallbacks', {}).items() if v) or 'none'}).\n")
-    (out / "summary.md").write_text(md)
+    write_atomic(out / "summary.md", md)
 
 
 def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[str, Any]:
@@ -262,10 +282,10 @@ def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[s
         "decision_latency_s_p50": float(np.median([r["decision_latency_s"]["p50"] for r in results])),
     }
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(agg, indent=2))
+    write_atomic(out / "summary.json", json.dumps(agg, indent=2))
     seeds = results[0]["config"]["seeds"]
     rows = "".join(f"| {s} | {m:.3f} | {r:.2f} |\n" for s, m, r in zip(agg["sampling_seeds"], scores, success))
-    (out / "summary.md").write_text(
+    write_atomic(out / "summary.md",
         f"# {title}\n\nEnv seeds {seeds[0]}..{seeds[-1]} ({len(seeds)}), one row per sampling seed.\n\n"
         f"| sampling seed | mean score | success rate |\n|---|---|---|\n{rows}"
         f"| **all** | **{agg['mean_score']:.3f} +- {agg['score_std']:.3f}** (range {agg['score_range'][0]:.3f}-"

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from gpc.harness.files import write_atomic
 from gpc.tasks import get_task
 
 STATE_STRIDE, IMAGE_STRIDE = 1, 8  # default steps between window starts
@@ -88,8 +89,8 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
         table = markdown_table(report, f"World model rollouts: {checkpoint}")
     report["checkpoint"] = str(checkpoint)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "world_model_eval.json").write_text(json.dumps(report, indent=2))
-    (out / "world_model_eval.md").write_text(table)
+    write_atomic(out / "world_model_eval.json", json.dumps(report, indent=2))
+    write_atomic(out / "world_model_eval.md", table)
     return Written(table, (out / "world_model_eval.json", out / "world_model_eval.md", *files))
 
 
@@ -111,6 +112,6 @@ def evaluate_reward(checkpoint: Path, datasets: Sequence[Path], out: Path | None
     out = out or default_out(checkpoint)
     out.mkdir(parents=True, exist_ok=True)
     table = markdown_report(reports, f"Image reward: {checkpoint}")
-    (out / "reward_eval.json").write_text(json.dumps(reports, indent=2))
-    (out / "reward_eval.md").write_text(table)
+    write_atomic(out / "reward_eval.json", json.dumps(reports, indent=2))
+    write_atomic(out / "reward_eval.md", table)
     return Written(table, (out / "reward_eval.json", out / "reward_eval.md"))

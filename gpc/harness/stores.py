@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
 from gpc.harness.video import write_mp4
 from gpc.tasks import DEFAULT_TASK, get_task
+from gpc.tasks.base import IMAGE_KEY, Task
 
 
 def _task_of(store: EpisodeStore) -> str:
@@ -62,3 +64,23 @@ def episode_video(path: Path, episode: int, out: Path | None) -> Path:
     else:
         raise DataError(f"{path}: episode {episode} has neither img nor state to draw")
     return out
+
+
+def check_stores(task: Task, paths: Sequence[str | Path], keys: Sequence[str]) -> None:
+    """Refuse, in one line naming the store and key, stores a component of ``task`` cannot train on: a missing
+    key, values that are not numbers, or a step shape other than the task's (images: any square RGB size)."""
+    if not paths:
+        raise DataError("no dataset given (pass --dataset PATH)")
+    for path in paths:
+        store = EpisodeStore.open(path)
+        if store.n_episodes == 0:
+            raise DataError(f"{path}: holds no episodes")
+        for key in keys:
+            arr = store.array(key)
+            if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+                raise DataError(f"{path}: data/{key} holds {arr.dtype} values, not numbers")
+            row, want = tuple(arr.shape[1:]), task.row_shape(key)
+            if key == IMAGE_KEY and (len(row) != 3 or row[0] != row[1] or row[2] != 3):
+                raise DataError(f"{path}: data/{key} frames are {row}, not square RGB (S, S, 3)")
+            if want is not None and row != want:
+                raise DataError(f"{path}: data/{key} rows are {row}; task {task.name} stores {want}")

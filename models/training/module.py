@@ -5,7 +5,7 @@ A component (policy, world model, reward predictor) supplies its config, its net
 optimiser, the EMA copy (when the config asks for one), the stop on a non-finite loss, the
 checkpoint record and rebuilding a module from a checkpoint alone. What a component needs to
 be trained on stores (its data windows, how its config adapts to the data, how it is built
-from the data) are the classmethods below; ``models.training.trainer.train`` calls them.
+from the data) are the classmethods below; ``gpc.models.training.trainer.train`` calls them.
 """
 
 from __future__ import annotations

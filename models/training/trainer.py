@@ -1,7 +1,7 @@
 """One training run for any component: Zarr stores -> DataModule -> module -> checkpoints in a run directory.
 
 ``train(ModuleClass, config, datasets, run)`` trains a policy, a world model or a reward
-predictor alike (``models.training.module.TrainableModule`` says what each supplies);
+predictor alike (``gpc.models.training.module.TrainableModule`` says what each supplies);
 ``fit_module`` is the Lightning loop inside it.
 
 Run directory layout::
@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -37,6 +38,7 @@ from lightning.pytorch.utilities import rank_zero_only
 
 from gpc.datasets.datamodule import EpisodeDataModule
 from gpc.datasets.errors import DataError
+from gpc.datasets.locks import exclusive
 from gpc.datasets.sequence import recorded_split
 from gpc.models.training.checkpoint import read_checkpoint
 from gpc.models.training.config import RunConfig
@@ -81,7 +83,11 @@ class LastCheckpoint(Callback):
 
     def _save(self, trainer: L.Trainer) -> None:
         tmp = self.path.with_name(self.path.name + ".tmp")
-        trainer.save_checkpoint(tmp, weights_only=False)
+        try:
+            trainer.save_checkpoint(tmp, weights_only=False)
+        except BaseException:  # a full disk or a stop mid-write: the previous last.ckpt stays as it was
+            tmp.unlink(missing_ok=True)
+            raise
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("gpc-last-checkpoint")
@@ -141,11 +147,30 @@ def _stored_config(cls: type[TrainableModule], ckpt: dict[str, Any], path: Path)
 
 
 def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
-          init: str | os.PathLike | None = None) -> TrainResult:
+          init: str | os.PathLike | None = None, callbacks: Sequence[Callback] = ()) -> TrainResult:
     """Train (or resume) the component ``cls`` with ``config`` on the given stores; returns where the checkpoints are.
 
-    ``init``: a checkpoint of the same kind whose weights (and held-out episodes) a new run starts from.
+    ``init``: a checkpoint of the same kind whose weights (and held-out episodes) a new run starts from;
+    ``callbacks``: more Lightning callbacks. Lightning's settings and the stores are checked before the run
+    directory is made; the run directory is locked while written (one writer), and one this call made is
+    removed again if training fails before its first checkpoint.
     """
+    check_lightning(run)
+    run_dir = Path(run.run_dir)
+    if getattr(rank_zero_only, "rank", 0) != 0:  # a DDP worker Lightning launched: rank 0 holds the lock and owns the directory
+        return _train(cls, config, datasets, run, init, callbacks)
+    with exclusive(run_dir, "run directory"):
+        made = not run_dir.exists()
+        try:
+            return _train(cls, config, datasets, run, init, callbacks)
+        except BaseException:
+            if made and not (run_dir / "checkpoints" / LAST).exists():
+                shutil.rmtree(run_dir, ignore_errors=True)
+            raise
+
+
+def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
+           init: str | os.PathLike | None, callbacks: Sequence[Callback]) -> TrainResult:
     run_dir = Path(run.run_dir)
     last = check_run_dir(run)
     paths = tuple(str(p) for p in datasets)
@@ -182,10 +207,38 @@ def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.P
             module.load_state_dict(init_state)
         except RuntimeError as exc:
             raise DataError(f"{init}: weights do not fit the {cls.WHAT} ({str(exc).splitlines()[0][:200]})") from None
-    return fit_module(module, data, run, validate=len(data.val_episodes) > 0)
+    return fit_module(module, data, run, validate=len(data.val_episodes) > 0, extra=callbacks)
 
 
-def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunConfig, validate: bool) -> TrainResult:
+ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
+
+
+def check_lightning(run: RunConfig) -> None:
+    """Refuse, in one line naming the option, settings Lightning cannot run here (before anything is written)."""
+    if run.accelerator not in ACCELERATORS:
+        raise ValueError(f"--accelerator {run.accelerator!r}: use one of {', '.join(ACCELERATORS)}")
+    if run.accelerator in ("gpu", "cuda") and not torch.cuda.is_available():
+        raise ValueError(f"--accelerator {run.accelerator}: no GPU is visible to torch on this machine; use cpu or auto")
+    devices = run.devices
+    if not (devices == "auto" or (isinstance(devices, int) and devices >= 1)
+            or (isinstance(devices, str) and devices.isdigit() and int(devices) >= 1)):
+        raise ValueError(f"--devices {devices!r}: use a number of devices (at least 1) or auto")
+    try:
+        L.Trainer(accelerator=run.accelerator, devices=_devices(run), strategy=run.strategy, num_nodes=run.num_nodes,
+                  precision=run.precision, logger=False, enable_checkpointing=False,  # type: ignore[arg-type]
+                  enable_progress_bar=False, enable_model_summary=False)
+    except Exception as exc:  # Lightning raises several types for settings it cannot serve
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"--accelerator {run.accelerator} --devices {run.devices} --strategy {run.strategy} "
+                         f"--precision {run.precision}: Lightning cannot run this here ({first[:200]})") from None
+
+
+def _devices(run: RunConfig) -> int | str:
+    return int(run.devices) if isinstance(run.devices, str) and run.devices.isdigit() else run.devices
+
+
+def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunConfig, validate: bool,
+               extra: Sequence[Callback] = ()) -> TrainResult:
     """Run Lightning on any of our modules: last/best checkpoints, TensorBoard, resume, NaN stop.
 
     The module logs ``val/loss`` (when ``validate``) and sets ``diverged_at`` (a step, or
@@ -195,7 +248,7 @@ def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunCon
     ckpt_dir = run_dir / "checkpoints"
     last = ckpt_dir / LAST
     ckpt_dir.mkdir(parents=True, exist_ok=True)
-    callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every), LearningRateMonitor("step")]
+    callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every), LearningRateMonitor("step"), *extra]
     best_cb = None
     if validate:
         best_cb = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST[:-5], monitor="val/loss", mode="min", save_top_k=1,
@@ -204,7 +257,7 @@ def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunCon
         callbacks.append(best_cb)
     if run.progress:
         callbacks.append(StepProgressBar())
-    devices = int(run.devices) if isinstance(run.devices, str) and run.devices.isdigit() else run.devices
+    devices = _devices(run)
     trainer = L.Trainer(
         default_root_dir=run_dir, max_steps=run.max_steps or -1, max_epochs=run.max_epochs or (-1 if run.max_steps else None),
         accelerator=run.accelerator, devices=devices, strategy=run.strategy, num_nodes=run.num_nodes,

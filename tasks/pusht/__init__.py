@@ -120,6 +120,7 @@ TASK = Task(
     draw_futures=render.draw_futures,
     pose_coverage=pose_coverage,
     check_replay=check_replay,
+    row_shapes={"keypoint": (9, 2), "goal_keypoint": (9, 2), "n_contacts": (1,)},
 )
 
 __all__ = ["ENV_ID", "LAYOUT", "TASK", "PushTEnv", "SimulatorModel", "geometry", "render"]

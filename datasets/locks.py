@@ -1,0 +1,55 @@
+"""One writer at a time: an exclusive OS lock for each store, run directory and results folder being written.
+
+The lock is ``flock`` on a small file beside the target (``.NAME.lock`` in its parent folder), so it
+exists before the target does and dies with the process that holds it: a SIGKILL never leaves a
+stale lock. A second writer fails at once with one line naming the holder's pid. Readers take no
+lock (a store's readers see whole episodes only). The lock file is left in place when released:
+removing it would let two processes lock two different files of the same name.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from gpc.datasets.errors import DataError
+
+
+def lock_path(target: str | os.PathLike) -> Path:
+    target = Path(target).absolute()
+    return target.parent / f".{target.name}.lock"
+
+
+@contextmanager
+def exclusive(target: str | os.PathLike, what: str) -> Iterator[None]:
+    """Hold the writer's lock on ``target`` (a store, run directory or results folder) for the block.
+
+    ``what`` names the target in the refusal: "store", "run directory", "results folder".
+    """
+    path = lock_path(target)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise DataError(f"{target}: cannot write here ({exc.strerror or exc})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                raise
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise DataError(f"{target}: another gpc process (pid {holder}) is writing this {what}; "
+                            "wait for it to finish or stop it") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        try:
+            yield
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)

@@ -1,0 +1,125 @@
+"""A results folder that never loses a run: checked before the work, one writer, each finished group kept.
+
+``run_into(out, recipe, config)`` is what `gpc eval` and `gpc plan` do: before any episode it checks
+that ``out`` can be written and does not hold another run's results (unless ``resume`` or
+``overwrite`` says so), then holds the folder's lock while each finished lockstep group is saved
+(``out/.groups/``, one JSON file each, written whole) and finally ``episodes.json``,
+``summary.json`` and ``summary.md``. A run stopped (SIGINT, SIGTERM, SIGKILL) is finished by the
+same command with ``--resume``: the saved groups are not run again, and since every episode draws
+from its own random stream the results equal an uninterrupted run's (decision times aside).
+
+A run's identity is what its numbers depend on: the evaluation settings (not the worker count),
+the controller, and the checkpoints' contents (SHA-256), so a retrained checkpoint is a new run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from gpc.datasets.errors import DataError
+from gpc.datasets.locks import exclusive
+from gpc.harness import interrupts
+from gpc.harness.evaluation import EvalConfig, evaluate, write_results
+from gpc.harness.files import read_json, write_atomic
+from gpc.harness.recipes import GT_SIM, PlannerRecipe
+
+GROUPS = ".groups"
+RESULT_FILES = ("episodes.json", "summary.json", "summary.md")
+NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size")  # settings the scores do not depend on
+
+
+def _digest(path: str) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_identity(recipe: PlannerRecipe, config: EvalConfig) -> dict[str, Any]:
+    """What the run's numbers depend on (see the module docstring)."""
+    files = [recipe.policy, recipe.world_model, recipe.reward.checkpoint]
+    settings = {k: v for k, v in asdict(config).items() if k not in NOT_IDENTITY}
+    controller = recipe.summary()
+    controller.get("planner", {}).pop("keep_futures", None)  # videos only
+    return json.loads(json.dumps({"config": settings, "controller": controller,
+                                  "checkpoints": {f: _digest(f) for f in files if f and f != GT_SIM and Path(f).is_file()}}))
+
+
+def check_out(out: Path) -> None:
+    """``out`` is (or can become) a folder this process may write, before any work is done."""
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if probe == out and not out.is_dir():
+        raise DataError(f"{out}: is a file; --out names a folder for results")
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise DataError(f"{out}: cannot be written here ({probe} is not a writable folder)")
+
+
+def _held(out: Path) -> Any:
+    """The identity of the run whose results ``out`` holds (finished or not), or None when it holds none."""
+    for record in (out / GROUPS / "run.json", out / "summary.json"):
+        if record.is_file():
+            return read_json(record).get("run", "unknown")
+    return None
+
+
+def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> list[dict[str, Any]]:
+    """Make ``out`` ready for this run; returns the groups an earlier, stopped run of it finished.
+
+    ``resume``: go on with the same run (refused for another); ``overwrite``: replace another run's
+    results; both: go on if it is the same run, else replace.
+    """
+    held = _held(out)
+    same = held == identity
+    if held is not None and not (resume and same) and not overwrite:
+        if resume:
+            raise DataError(f"{out}: holds results of another run (other settings, controller or checkpoints); "
+                            "--resume only finishes the same run (pass --overwrite to replace them)")
+        raise DataError(f"{out}: already holds results; pass --resume to finish the same run or --overwrite to "
+                        "replace them, or choose another --out")
+    if held is not None and not (resume and same):
+        for name in RESULT_FILES:
+            (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / GROUPS, ignore_errors=True)
+    groups = out / GROUPS
+    groups.mkdir(parents=True, exist_ok=True)
+    write_atomic(groups / "run.json", json.dumps({"run": identity}, indent=1))
+    return [read_json(p) for p in sorted(groups.glob("group-*.json"))]
+
+
+def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool = False, overwrite: bool = False,
+             on_group: Any = None) -> dict[str, Any]:
+    """Evaluate ``recipe`` on ``config``'s seeds into ``out``; returns the result (``write_results`` wrote it)."""
+    out = Path(out)
+    check_out(out)
+    identity = run_identity(recipe, config)
+    with exclusive(out, "results folder"):
+        if resume and (out / "summary.json").is_file() and _held(out) == identity and not (out / GROUPS).exists():
+            return {**read_json(out / "summary.json"), "episodes": read_json(out / "episodes.json")}
+        finished = prepare(out, identity, resume, overwrite)
+
+        def keep(group: dict[str, Any]) -> None:
+            write_atomic(out / GROUPS / f"group-{group['episodes'][0]['seed']:012d}.json", json.dumps(group))
+            if on_group:
+                on_group(group)
+
+        try:
+            result = evaluate(recipe, config, on_group=keep, finished=finished)
+        except interrupts.Interrupted as stop:
+            done = len(list((out / GROUPS).glob("group-*.json")))
+            stop.kept = (f"{done} of {len(config.groups())} lockstep groups are kept in {out / GROUPS} "
+                         "(run the same command with --resume to finish)")
+            raise
+        result["controller"] = recipe.summary()
+        result["run"] = identity
+        write_results(result, out, f"{recipe.label}: {recipe.policy}")
+        shutil.rmtree(out / GROUPS)
+    return result

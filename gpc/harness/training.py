@@ -1,0 +1,34 @@
+"""What `gpc train ...` runs: the stores checked against the task first, and an honest stop on a signal.
+
+``models.training.trainer.train`` is the training itself; this adds what only the harness knows
+(the task's step shapes) and turns a SIGINT or SIGTERM into ``Interrupted`` once the last
+checkpoint holds the step training stopped at.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any
+
+from gpc.harness.interrupts import Interrupted, StopOnSignal, requested
+from gpc.harness.stores import check_stores
+from gpc.models.training.config import RunConfig
+from gpc.models.training.module import TrainableModule
+from gpc.models.training.trainer import TrainResult, train
+from gpc.tasks import get_task
+
+
+def train_component(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
+                    init: str | os.PathLike | None = None) -> TrainResult:
+    """Train ``cls`` with ``config`` (see ``train``) after checking every store holds the keys and shapes it reads."""
+    paths = tuple(str(p) for p in datasets)
+    windows = cls.data_config(config, paths, run, (run.seed, run.val_ratio))
+    check_stores(get_task(config.task), paths, tuple(dict.fromkeys(windows.obs_keys + (windows.action_key,))))
+    stop = StopOnSignal()
+    result = train(cls, config, paths, run, init=init, callbacks=[stop])
+    signum = requested()
+    if stop.stopped_at is not None and signum is not None:
+        raise Interrupted(signum, f"training stopped at step {result.global_step}; {result.last} holds it "
+                                  "(run the same command with --resume to go on)")
+    return result
