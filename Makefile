@@ -176,8 +176,9 @@ types: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all --doc docs/benchmarks.md
 
+HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
 check-sim: $(STAMP)
-	$(BIN)/gpc check-sim
+	$(BIN)/gpc check-sim --data $(HUMAN_DATA)
 
 # Each stage is a file target: it runs when its output is missing or older than its inputs, and
 # collection and training resume from what an interrupted run left.

@@ -23,6 +23,7 @@ from gpc.models.planning.planner import Planner
 from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import STATE_KEY
+from gpc.tasks import get_task
 from gpc.tasks.pusht import LAYOUT, SimulatorModel, observe
 from gpc.tasks.pusht.env import PushTEnv
 
@@ -38,32 +39,35 @@ SETTINGS = [  # (label, planner config fields, world model: learned | gt-sim, ta
 ]
 
 
-def _world_model() -> WorldModelModule:
-    config = world_model_profile("cpu", 1, LAYOUT).config
+def _world_model(profile: str = "cpu") -> WorldModelModule:
+    config = world_model_profile(profile, 1, LAYOUT).config
     rng = np.random.default_rng(0)
-    states = rng.uniform(0, 512, (256, 5))
-    normalizer = MinMaxNormalizer.fit({STATE_KEY: states, "action": rng.uniform(0, 512, (256, 2))})
-    normalizer.add("state_delta", -np.ones(5), np.ones(5))
+    high, dim = LAYOUT.action.high, LAYOUT.state.dim
+    normalizer = MinMaxNormalizer.fit({STATE_KEY: rng.uniform(0, high, (256, dim)),
+                                       "action": rng.uniform(0, high, (256, LAYOUT.action.dim))})
+    normalizer.add("state_delta", -np.ones(dim), np.ones(dim))
     return WorldModelModule(config, normalizer).eval()
 
 
-def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None) -> None:
+def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = None, settings: list = SETTINGS,
+        samplers: tuple[int, ...] = (10, 5), profile: str = "cpu") -> None:
     from gpc.models.policy.module import PolicyModule
 
     torch.manual_seed(0)
-    policy = PolicyModule.load_from_checkpoint(policy_ckpt) if policy_ckpt else _policy("cpu", "keypoints")
-    learned = WorldModelModule.load_from_checkpoint(wm_ckpt) if wm_ckpt else _world_model()
-    reward = build_reward(RewardSpec(), "pusht")
+    policy = PolicyModule.load_from_checkpoint(policy_ckpt) if policy_ckpt else _policy(profile, "keypoints")
+    learned = WorldModelModule.load_from_checkpoint(wm_ckpt) if wm_ckpt else _world_model(profile)
+    reward = build_reward(RewardSpec(), get_task(LAYOUT.name))
     env = PushTEnv()
     env.reset(seed=100000)
     o = observe(env, images=False, sim=True)
     obs = {k: np.stack([v, v])[None] for k, v in o.items()}
     rows = []
-    for steps in (10, 5):
+    for steps in samplers:
         sampling = SamplingConfig("ddim", steps)
-        for label, fields, model, target in SETTINGS:
+        for label, fields, model, target in settings:
             wm = SimulatorModel() if model == "gt-sim" else learned
-            planner = Planner(PlannerConfig(**fields), wm, reward, policy, sampling)
+            box = {"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high}
+            planner = Planner(PlannerConfig(**fields, **box), wm, reward, policy, sampling)
             gen = torch.Generator().manual_seed(0)
             parts: dict[str, float] = {}
 

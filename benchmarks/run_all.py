@@ -18,7 +18,8 @@ if __name__ == "__main__":
     if args.only in (None, "sim"):
         bench_sim.run(args.doc)
     if args.only in (None, "policy"):
-        bench_policy.run(args.doc)
+        bench_policy.run(args.doc, obs="keypoints")
+        bench_policy.run(args.doc, obs="image")
     if args.only in (None, "vlm"):
         bench_vlm.run(args.doc)
     if args.only in (None, "world-model"):

@@ -30,7 +30,7 @@ Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (defa
 Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
 Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
-MaxSteps = Annotated[int, typer.Option("--max-steps", min=1, help="Steps per episode.")]
+MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, help="Steps per episode at most (default: the task's episode length).")]
 Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Finish the run this --out holds (its saved groups are not run again).")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace the results this --out holds (with --resume: only if they are another run's).")]
@@ -78,7 +78,7 @@ def eval_run(
     batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call."),
     threads: Threads = 1,
     goal: Goal = "fixed",
-    max_steps: MaxSteps = 300,
+    max_steps: MaxSteps = None,
     videos: int = typer.Option(0, "--videos", min=0, help="Write MP4s (planned chunk and, for planners, the predicted futures) for the first N seeds."),
     resume: Resume = False,
     overwrite: Overwrite = False,
@@ -87,27 +87,18 @@ def eval_run(
     from rich.progress import Progress
 
     from gpc.cli.reports import parse_seeds
-    from gpc.harness.evaluation import EvalConfig, write_spread
-    from gpc.harness.results import check_out, run_into
+    from gpc.harness.evaluation import EvalConfig
+    from gpc.harness.results import check_out, run_eval
 
     assert planning is not None  # with_planning_options passes them
     check_out(out)
-    samplings = parse_seeds(sampling_seeds, "--sampling-seeds")
-    test_seeds = tuple(parse_seeds(seeds))
+    samplings, test_seeds = parse_seeds(sampling_seeds, "--sampling-seeds"), tuple(parse_seeds(seeds))
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
-    results = []
-    for s in samplings:
-        config = EvalConfig(seeds=test_seeds, task=recipe.task, goal=goal, max_steps=max_steps, batch=batch,
-                            workers=workers, threads=threads, sampling_seed=s,
-                            video_dir=str(out / "videos") if videos and s == samplings[0] else None,
-                            videos=videos if s == samplings[0] else 0)
-        with Progress() as bar:
-            tid = bar.add_task(f"{recipe.label} (sampling seed {s})", total=len(config.seeds))
-            result = run_into(out / f"sampling-seed-{s}" if len(samplings) > 1 else out, recipe, config, resume, overwrite,
-                              on_group=lambda g: bar.advance(tid, len(g["episodes"])))
-        results.append(result)
-    if len(samplings) > 1:
-        write_spread(results, out, f"{recipe.label}: {checkpoint}")
+    config = EvalConfig(seeds=test_seeds, task=recipe.task, goal=goal, max_steps=max_steps, batch=batch, workers=workers,
+                        threads=threads, video_dir=str(out / "videos") if videos else None, videos=videos)
+    with Progress() as bar:
+        tid = bar.add_task(recipe.label, total=len(test_seeds) * len(samplings))
+        run_eval(out, recipe, config, samplings, resume, overwrite, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
     typer.echo((out / "summary.md").read_text())
 
 
@@ -119,7 +110,7 @@ def plan_one(
     seed: int = typer.Option(100000, "--seed", min=0, help="Environment seed."),
     out: Path = typer.Option(Path("results/plan"), "--out", "-o", help="Directory for the MP4 and the episode's JSON."),
     goal: Goal = "fixed",
-    max_steps: MaxSteps = 300,
+    max_steps: MaxSteps = None,
     threads: Threads = 2,
     overwrite: Overwrite = False,
 ) -> None:

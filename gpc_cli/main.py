@@ -40,8 +40,8 @@ def collect(
     workers: int = typer.Option(1, "--workers", "-j", min=1, help="Parallel worker processes; the store is identical for any count."),
     task: str = typer.Option(DEFAULT_TASK, "--task", help="Task to collect from."),
     goal: str = typer.Option("fixed", "--goal", help="fixed: the standard goal; random: a per-seed goal (GPC's variant)."),
-    images: bool = typer.Option(True, "--images/--no-images", help="Store 96x96 frames (key img)."),
-    max_steps: int = typer.Option(300, "--max-steps", min=1, help="Steps per episode at most."),
+    images: bool = typer.Option(True, "--images/--no-images", help="Store the camera's frames (key img)."),
+    max_steps: int | None = typer.Option(None, "--max-steps", min=1, help="Steps per episode at most (default: the task's episode length)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store instead of resuming it."),
 ) -> None:
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
@@ -99,7 +99,7 @@ def data_video(
 
 @app.command("check-sim")
 def check_sim(
-    data: Path = typer.Option(Path("../shared/data/pusht_human_train.zarr"), "--data", help="Recorded Push-T store (Diffusion Policy layout)."),
+    data: Path = typer.Option(..., "--data", help="A recorded store of the task (e.g. Diffusion Policy's Push-T data)."),
     episodes: int = typer.Option(0, "--episodes", min=0, help="Check only the first N episodes (0: all)."),
     frame_stride: int = typer.Option(10, "--frame-stride", min=1, help="Compare every k-th recorded frame."),
     out: Path | None = typer.Option(None, "--out", help="Also write the figures as JSON here."),

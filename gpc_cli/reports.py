@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -73,14 +72,5 @@ def collector_report(task: str, kind: str, seeds: list[int], goal: str, out: Pat
 
     with Progress(transient=True) as bar:
         tid = bar.add_task(f"{kind} episodes", total=len(seeds))
-        res = evaluate_collector(task, kind, seeds, goal=goal, on_episode=lambda _: bar.advance(tid))
-    md = (
-        f"| seeds | goal | mean score | success rate | s/episode p50 | s/episode max |\n|---|---|---|---|---|---|\n"
-        f"| {seeds[0]}..{seeds[-1]} ({len(seeds)}) | {goal} | {res['mean_score']:.3f} | {res['success_rate']:.2f} | "
-        f"{np.median(res['seconds']):.2f} | {np.max(res['seconds']):.2f} |"
-    )
-    if out:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / f"{kind}.json").write_text(json.dumps(res, indent=2, default=float))
-        (out / f"{kind}.md").write_text(md + "\n")
-    return md
+        res = evaluate_collector(task, kind, seeds, goal=goal, on_episode=lambda _: bar.advance(tid), out=out)
+    return str(res["markdown"])

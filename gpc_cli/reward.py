@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import typer
@@ -34,15 +33,8 @@ def train(
     from gpc.harness.training import train_component
     from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
 
-    chosen = reward_profile(profile, get_task(task).layout)
-    config = chosen.config
-    if image_size is not None:
-        config = dataclasses.replace(config, input_size=image_size)
-    if lr is not None:
-        config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
-    assert options is not None  # with_run_options passes the Lightning options
-    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(train_component(RewardPredictorModule, config, dataset, run))
+    chosen = reward_profile(profile, get_task(task).layout, input_size=image_size, lr=lr)
+    echo_result(train_component(RewardPredictorModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 
 @reward_app.command("eval")

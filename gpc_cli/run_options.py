@@ -80,13 +80,10 @@ def with_shared_options(spec: tuple[tuple[str, Any, Any], ...], key: str) -> Cal
 with_run_options = with_shared_options(RUN_OPTIONS, "options")
 
 
-def run_config(out: Path, default_steps: int, default_batch: int, *, max_steps: int | None, max_epochs: int | None,
-               batch_size: int | None, task: str, **lightning: Any):
-    """A ``RunConfig`` from the shared options, the profile filling what was not given."""
-    from gpc.models.training.config import RunConfig
-
-    return RunConfig(run_dir=out, max_steps=max_steps if max_steps or max_epochs else default_steps,
-                     max_epochs=max_epochs, batch_size=batch_size or default_batch, **lightning)
+def run_config(profile: Any, out: Path, options: dict[str, Any] | None) -> Any:
+    """The ``RunConfig`` the shared options describe (``Profile.run`` fills what was not given)."""
+    assert options is not None  # with_run_options passes the Lightning options
+    return profile.run(out, **options)
 
 
 def echo_result(result: Any) -> None:

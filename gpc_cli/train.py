@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import typer
 
 from gpc.cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
@@ -34,17 +32,8 @@ def policy(
     from gpc.models.policy.config import policy_profile
     from gpc.models.policy.module import PolicyModule
 
-    if goal not in ("fixed", "random"):
-        raise typer.BadParameter(f"goal {goal!r}: use fixed or random", param_hint="--goal")
-    chosen = policy_profile(profile, obs, get_task(task).layout)
-    policy_config = chosen.config
-    if goal == "random":
-        policy_config = dataclasses.replace(policy_config, encoder=dataclasses.replace(policy_config.encoder, goal=True))
-    if lr is not None:
-        policy_config = dataclasses.replace(policy_config, optim=dataclasses.replace(policy_config.optim, lr=lr))
-    assert options is not None  # with_run_options passes the Lightning options
-    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(train_component(PolicyModule, policy_config, dataset, run))
+    chosen = policy_profile(profile, obs, get_task(task).layout, goal=goal, lr=lr)
+    echo_result(train_component(PolicyModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 
 if __name__ == "__main__":  # `python -m gpc.cli.train policy ...` (DDP re-launches this way)

@@ -3,7 +3,6 @@ and ``gpc.harness.model_eval.evaluate_world_model``; the root CLI wires both."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import typer
@@ -36,30 +35,15 @@ def train(
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
     from gpc.harness.training import train_component
-    from gpc.models.world_models.config import FEEDBACK, OBS_TYPES, VisualWorldModelConfig, world_model_profile
+    from gpc.models.world_models.config import world_model_profile
     from gpc.models.world_models.module import WorldModelModule, find_phase_one
 
-    if obs not in OBS_TYPES:
-        raise typer.BadParameter(f"world model obs {obs!r}: use one of {', '.join(OBS_TYPES)}", param_hint="--obs")
-    if unroll is not None and phase != 2:
-        raise typer.BadParameter("--unroll applies to phase 2", param_hint="--unroll")
-    if feedback is not None and (obs != "image" or phase != 2 or feedback not in FEEDBACK):
-        raise typer.BadParameter(f"--feedback applies to --obs image --phase 2 and is one of {', '.join(FEEDBACK)}",
-                                 param_hint="--feedback")
-    try:
-        chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame)
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--frame" if "frame" in str(exc) else "--profile") from None
-    assert options is not None  # with_run_options passes the Lightning options
-    config = dataclasses.replace(chosen.config, unroll=unroll)
-    if feedback is not None:
-        assert isinstance(config, VisualWorldModelConfig)  # checked above: --obs image
-        config = dataclasses.replace(config, feedback=feedback)
-    if phase == 2 and init is None and not options["resume"]:
+    chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame, unroll=unroll, feedback=feedback)
+    run = run_config(chosen, out, options)
+    if phase == 2 and init is None and not run.resume:
         init = find_phase_one(out)
         typer.echo(f"phase 2 starts from {init}")
-    run = run_config(out, chosen.max_steps, chosen.batch_size, task=task, **options)
-    echo_result(train_component(WorldModelModule, config, dataset, run, init=init))
+    echo_result(train_component(WorldModelModule, chosen.config, dataset, run, init=init))
 
 
 @world_model_app.command("eval")

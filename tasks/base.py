@@ -67,6 +67,7 @@ class Task:
     pose_coverage: Callable[[np.ndarray], float] | None = None  # states -> share of the object's pose space visited
     check_replay: Callable[..., dict[str, Any]] | None = None  # recorded store -> how closely the simulator replays it
     row_shapes: Mapping[str, tuple[int, ...]] = field(default_factory=dict)  # one step's shape per stored key, beyond the layout's
+    references: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  # published tables: name -> controller label -> score
 
     def __post_init__(self) -> None:
         if not self.goal_modes or self.goal_modes[0] != "fixed":

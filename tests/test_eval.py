@@ -14,9 +14,9 @@ from typer.testing import CliRunner
 from gpc.cli.main import app
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import EvalConfig, episode_generator, evaluate, run_group, write_results
+from gpc.harness.recipes import PlannerRecipe
 from gpc.models.planning.protocols import Controller, Plan
 from gpc.models.policy.config import policy_profile
-from gpc.models.policy.controller import PolicyControllerFactory
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
@@ -65,7 +65,7 @@ def test_harness_scores_a_known_controller_exactly():
 
 
 def test_bc_results_are_identical_for_any_worker_count_and_repeatable(checkpoint, tmp_path):
-    factory = PolicyControllerFactory(checkpoint)
+    factory = PlannerRecipe(str(checkpoint))  # BC: the policy alone
     config = EvalConfig(task="pusht", seeds=SEEDS, max_steps=24, batch=2)
     one = evaluate(factory, config)
     two = evaluate(factory, EvalConfig(task="pusht", seeds=SEEDS, max_steps=24, batch=2, workers=2))

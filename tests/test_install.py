@@ -8,6 +8,7 @@ install of this checkout: what a user's `pip install` builds). Both packages imp
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -32,13 +33,21 @@ def test_gpc_and_hugging_face_datasets_share_one_environment(tmp_path):
     python, gpc = venv / "bin" / "python", venv / "bin" / "gpc"
     run([str(python), "-m", "pip", "install", "-q", "datasets"], tmp_path)
     run([str(python), "-m", "pip", "install", "-q", TORCH_SPEC], tmp_path)
-    run([str(python), "-m", "pip", "install", "-q", str(ROOT)], tmp_path)
+    source = tmp_path / "source"  # the project's files only: a build in the checkout would leave build/ behind
+    source.mkdir()
+    listing = ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"]
+    files = subprocess.run(listing, cwd=ROOT, capture_output=True, check=True).stdout.split(b"\0")
+    for name in filter(None, (f.decode() for f in files)):
+        if (ROOT / name).is_file():
+            (source / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, source / name)
+    run([str(python), "-m", "pip", "install", "-q", str(source)], tmp_path)
     probe = ("import datasets, gpc.datasets, gpc.models.policy.module, gpc.harness.evaluation, gpc.cli.main; "
              "assert 'site-packages/datasets/' in datasets.__file__, datasets.__file__; "
              "assert 'site-packages/gpc/datasets/' in gpc.datasets.__file__, gpc.datasets.__file__; "
              "print(datasets.Dataset.from_dict({'a': [1, 2]}).num_rows)")
     assert run([str(python), "-c", probe], tmp_path).strip() == "2"
-    for name in ("models", "tasks"):  # no top-level import name of ours is left behind
+    for name in ("models", "tasks", "gpc_cli"):  # no top-level import name of ours is left behind
         assert "ModuleNotFoundError" in subprocess.run([str(python), "-c", f"import {name}"], cwd=tmp_path,
                                                        capture_output=True, text=True).stderr
     assert "collect" in run([str(gpc), "--help"], tmp_path)

@@ -13,6 +13,7 @@ import torch
 from typer.testing import CliRunner
 
 import gpc.models.training.trainer as wmt
+from gpc.cli.main import app
 from gpc.cli.world_model import world_model_app
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
@@ -215,7 +216,7 @@ def test_eval_reports_figures_and_a_grid(phase2, store):
     assert report["windows"] > 10 and len(report["steps"]) == 2 and report["steps"][1]["actions"] == 4
     for row in report["steps"]:
         for name in ("model", "baseline"):
-            assert 0.0 < row[name]["ssim"] <= 1.0 and np.isfinite(row[name]["psnr"])
+            assert 0.0 < row[name]["ssim"] <= 1.0 and row[name]["psnr"] > 5.0  # the pose figures are checked below
     ro = report["readout"]
     assert ro["moving_windows"] > 0 and ro["final_moving"]["baseline"]["object_units"] > 5.0
     for name in ("model", "baseline"):  # a briefly trained 16 px model may lose the block (NaN poses) in every frame
@@ -326,8 +327,8 @@ def test_cli_trains_both_phases_and_evaluates(store, tmp_path):
     two = cli.invoke(world_model_app, ["train", "--phase", "2", "--feedback", "sampled", "--out", str(tmp_path / "vwm-phase2"), *common])
     assert two.exit_code == 0, two.output
     assert f"phase 2 starts from {tmp_path / 'vwm-phase1' / 'checkpoints' / 'last.ckpt'}" in two.output
-    bad = cli.invoke(world_model_app, ["train", "--out", str(tmp_path / "x"), *common[:4], "--profile", "huge"])
-    assert bad.exit_code == 2 and "Invalid value for --profile" in bad.output and "'huge'" in bad.output
+    bad = cli.invoke(app, ["train", "world-model", "--out", str(tmp_path / "x"), *common[:4], "--profile", "huge"])
+    assert bad.exit_code == 2 and "visual world model profile 'huge'" in bad.output and len(bad.output.strip().splitlines()) == 1
     last = tmp_path / "vwm-phase2" / "checkpoints" / "last.ckpt"
     ev = cli.invoke(world_model_app, ["eval", str(last), "--dataset", str(store), "--split", "all", "--episodes", "2",
                                       "--stride", "6"])

@@ -25,6 +25,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.datasets.store import EpisodeStore
 from gpc.harness import interrupts
+from gpc.harness.files import check_out, write_atomic
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import COLLECTORS, Task
 
@@ -41,11 +42,14 @@ class CollectJob:
     workers: int = 1
     goal: str = "fixed"
     images: bool = True
-    max_steps: int = 300
+    max_steps: int | None = None  # steps per episode at most (None: the task's episode length)
     overwrite: bool = False
 
     def __post_init__(self) -> None:
-        get_task(self.task).check_goal(self.goal)  # raises for an unknown task
+        task = get_task(self.task)  # raises for an unknown task
+        task.check_goal(self.goal)
+        if self.max_steps is None:
+            object.__setattr__(self, "max_steps", task.max_episode_steps)
         if self.kind not in COLLECTORS:
             raise ValueError(f"collector {self.kind!r}: use one of {', '.join(COLLECTORS)}")
         for name in ("episodes", "workers", "max_steps"):
@@ -53,6 +57,12 @@ class CollectJob:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
         if self.seed < 0:
             raise ValueError(f"--seed {self.seed}: must be non-negative")
+
+    @property
+    def steps(self) -> int:
+        """Steps per episode at most (the task's episode length unless given)."""
+        assert self.max_steps is not None  # filled in __post_init__
+        return self.max_steps
 
     @property
     def seeds(self) -> list[int]:
@@ -63,8 +73,8 @@ class CollectJob:
         task = get_task(self.task)
         return {
             "task": self.task,
-            "env": task.env_params(self.goal, self.max_steps),
-            "collector": {"kind": self.kind, **task.collector_params(self.kind, self.max_steps)},
+            "env": task.env_params(self.goal, self.steps),
+            "collector": {"kind": self.kind, **task.collector_params(self.kind, self.steps)},
             "keys": task.record_keys(self.images, self.goal),
         }
 
@@ -175,7 +185,7 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
         todo = [s for s in job.seeds if s not in done]
         if on_start:
             on_start(len(job.seeds) - len(todo))
-        args = [(job.task, job.kind, s, job.goal, job.images, job.max_steps) for s in todo]
+        args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
         stats: list[dict] = []
         try:
             for data, st in _results(args, job.workers):
@@ -217,10 +227,15 @@ def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], 
 
 
 def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "fixed", max_steps: int | None = None,
-                       on_episode: Callable[[dict], None] | None = None) -> dict[str, Any]:
-    """Closed-loop score of a task's scripted collector (the expert stops at success): max reward per episode."""
+                       on_episode: Callable[[dict], None] | None = None, out: Path | None = None) -> dict[str, Any]:
+    """Closed-loop score of a task's scripted collector (the expert stops at success): max reward per episode.
+
+    The result holds a Markdown row (``markdown``); ``out``: also write ``KIND.json`` and ``KIND.md`` there.
+    """
     t = get_task(task)
     t.check_goal(goal)
+    if out is not None:
+        check_out(out)
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
     for seed in res["seeds"]:
         t0 = time.perf_counter()
@@ -232,4 +247,12 @@ def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "
             on_episode(row)
     res.update(mean_score=float(np.mean(res["scores"])), success_rate=float(np.mean(res["successes"])),
                median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
+    res["markdown"] = (
+        f"| seeds | goal | mean score | success rate | s/episode p50 | s/episode max |\n|---|---|---|---|---|---|\n"
+        f"| {res['seeds'][0]}..{res['seeds'][-1]} ({len(res['seeds'])}) | {goal} | {res['mean_score']:.3f} | "
+        f"{res['success_rate']:.2f} | {res['median_seconds']:.2f} | {res['max_seconds']:.2f} |")
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(out / f"{kind}.json", json.dumps({k: v for k, v in res.items() if k != "markdown"}, indent=2, default=float))
+        write_atomic(out / f"{kind}.md", res["markdown"] + "\n")
     return res

@@ -10,22 +10,19 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from gpc.datasets.errors import DataError
-from gpc.harness.files import write_atomic
+from gpc.harness.files import read_json, write_atomic
+from gpc.tasks import DEFAULT_TASK, get_task
 
-# The paper's tables (100 seeds; vision: IoU score), keyed by our controller labels.
-PAPER = {
-    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882},
-    "pusht-state": {
-        "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
-        "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,
-    },
-}
+# What makes two runs comparable seed by seed: (summary field, how the message names it).
+SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-steps"), ("sampling_seed", "--sampling-seeds"),
+            ("n_action_steps", "actions executed per decision"))
 
 
 def t_quantile(p: float, dof: int) -> float:
@@ -69,11 +66,31 @@ def load_run(path: Path) -> dict[str, Any]:
     path = Path(path)
     for d in (path, path / "sampling-seed-0"):
         if (d / "episodes.json").is_file() and (d / "summary.json").is_file():
-            summary = json.loads((d / "summary.json").read_text())
-            rows = {r["seed"]: r for r in json.loads((d / "episodes.json").read_text())}
+            summary, episodes = read_json(d / "summary.json"), read_json(d / "episodes.json")
+            for key in ("config", "decision_latency_s", "call_latency_s"):
+                if not isinstance(summary, dict) or key not in summary:
+                    raise DataError(f"{d / 'summary.json'}: not a gpc eval summary (no {key!r})")
+            if not isinstance(episodes, list) or any(not {"seed", "score", "success"} <= set(r) for r in episodes):
+                raise DataError(f"{d / 'episodes.json'}: not gpc eval episodes (each needs seed, score and success)")
+            rows = {r["seed"]: r for r in episodes}
             label = summary.get("controller", {}).get("controller", d.name)
             return {"path": str(path), "label": label, "summary": summary, "rows": rows}
     raise DataError(f"{path}: no gpc eval results here (episodes.json, summary.json); run `gpc eval ... --out {path}` first")
+
+
+def settings(summary: dict[str, Any]) -> dict[str, Any]:
+    """The settings a run's per-seed scores depend on, besides its controller (``SETTINGS``)."""
+    merged = {**summary.get("config", {}), **({"n_action_steps": summary["n_action_steps"]} if "n_action_steps" in summary else {})}
+    return {key: merged.get(key) for key, _ in SETTINGS}
+
+
+def check_comparable(run: dict[str, Any], base: dict[str, Any], what: str = "the baseline") -> None:
+    """Refuse to pair runs whose settings differ (a setting a run predates is not checked)."""
+    mine, theirs = settings(run["summary"]), settings(base["summary"])
+    for key, name in SETTINGS:
+        if mine[key] is not None and theirs[key] is not None and mine[key] != theirs[key]:
+            raise DataError(f"{run['path']}: {name} {mine[key]} differs from {what}'s {theirs[key]} ({base['path']}); "
+                            "only runs with the same settings pair seed by seed")
 
 
 def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
@@ -82,6 +99,7 @@ def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
     for part in parts:
         if part["summary"].get("controller") != first["summary"].get("controller"):
             raise DataError(f"{path}: {part['path']} ran another controller than {first['path']}; join runs of one controller")
+        check_comparable(part, first, "its first part")
         twice = sorted(set(rows) & set(part["rows"]))
         if twice:
             raise DataError(f"{path}: seed(s) {twice[:5]} appear in more than one part")
@@ -105,6 +123,8 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
     seeds = sorted(base["rows"])
     top = load_run(ceiling) if ceiling else None
     table = []
+    for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)] + ([top] if top else []):
+        check_comparable(run, base)
     for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)]:
         missing = [s for s in seeds if s not in run["rows"]]
         if missing:
@@ -131,7 +151,8 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
             row["gap_closed_success"] = float(ds / gap_s) if gap_s > 0 else float("nan")
         table.append(row)
     _tell_apart(table)
-    return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "rows": table}
+    return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "task": settings(base["summary"])["task"],
+            "rows": table}
 
 
 def _tell_apart(rows: list[dict[str, Any]]) -> None:
@@ -155,10 +176,16 @@ def _pct(x: float) -> str:
 
 
 def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | None = None) -> str:
-    """Markdown (and JSON beside it) of a ``compare_runs`` table; returns the Markdown."""
-    if paper is not None and paper not in PAPER:
-        raise ValueError(f"--paper {paper!r}: known tables are {', '.join(PAPER)}")
-    figures = PAPER.get(paper, {}) if paper else {}
+    """Markdown (and JSON beside it) of a ``compare_runs`` table; returns the Markdown.
+
+    ``paper``: one of the baseline task's reference tables (``Task.references``), shown beside ours.
+    """
+    figures: Mapping[str, float] = {}
+    if paper is not None:
+        references = get_task(table["task"] or DEFAULT_TASK).references
+        if paper not in references:
+            raise ValueError(f"--paper {paper!r}: task {table['task']} has the reference tables {', '.join(references) or 'none'}")
+        figures = references[paper]
     head = "| controller | " + ("paper | " if figures else "") + (
         "score | success | score - BC [95% CI] | success - BC [95% CI] | gap closed (score / success) "
         "| s/decision | time share |")

@@ -40,7 +40,7 @@ class EvalConfig:
     seeds: tuple[int, ...]
     task: str  # a registered task's name (gpc.tasks.get_task)
     goal: str = "fixed"
-    max_steps: int = 300
+    max_steps: int | None = None  # steps per episode at most (None: the task's episode length)
     batch: int = 25  # episodes per lockstep group (one controller call per decision per group)
     workers: int = 1  # processes; results do not depend on it
     threads: int = 1  # torch threads per process; results do depend on it (float reduction order)
@@ -50,7 +50,10 @@ class EvalConfig:
     video_size: int = 384
 
     def __post_init__(self) -> None:
-        get_task(self.task).check_goal(self.goal)
+        task = get_task(self.task)
+        task.check_goal(self.goal)
+        if self.max_steps is None:
+            object.__setattr__(self, "max_steps", task.max_episode_steps)
         if not self.seeds:
             raise ValueError("--seeds: no seeds given")
         if len(set(self.seeds)) != len(self.seeds):
@@ -113,7 +116,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                     row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
                 row["success"] = row["success"] or bool(terminated)
                 hist[i].append(task.observe(env, images, sim))  # every step: the history is consecutive steps, as in training
-                if terminated or row["steps"] >= config.max_steps:
+                if terminated or row["steps"] >= (config.max_steps or task.max_episode_steps):
                     done[i] = True
                     break
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
@@ -123,7 +126,8 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         assert config.video_dir is not None  # EvalConfig refuses videos without a directory
         write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
     stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
-    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats}
+    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats,
+            "n_action_steps": getattr(controller, "n_action_steps", None)}
 
 
 def _film_frames(task: Task, env: Any, plan: Plan, i: int, j: int, size: int) -> list[np.ndarray]:
@@ -197,7 +201,11 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
             if on_group:
                 on_group(group)
             interrupts.check()
-    return summarize(groups, time.perf_counter() - t0, config)
+    result = summarize(groups, time.perf_counter() - t0, config)
+    summary = getattr(factory, "summary", None)  # a PlannerRecipe says what it built
+    if callable(summary):
+        result["controller"] = summary()
+    return result
 
 
 def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
@@ -229,6 +237,7 @@ def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> 
         _add_counts(stats, g.get("stats", {}))
     return {
         "config": asdict(config),
+        "n_action_steps": next((g["n_action_steps"] for g in groups if g.get("n_action_steps") is not None), None),
         "episodes": rows,
         "mean_score": float(np.mean([r["score"] for r in rows])),
         "success_rate": float(np.mean([r["success"] for r in rows])),

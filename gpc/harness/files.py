@@ -31,3 +31,14 @@ def read_json(path: Path) -> Any:
         raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     except ValueError as exc:
         raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0][:120]})") from None
+
+
+def check_out(out: Path) -> None:
+    """``out`` is (or can become) a folder this process may write, before any work is done."""
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if probe == out and not out.is_dir():
+        raise DataError(f"{out}: is a file; --out names a folder for results")
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise DataError(f"{out}: cannot be written here ({probe} is not a writable folder)")

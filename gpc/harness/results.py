@@ -14,10 +14,11 @@ the controller, and the checkpoints' contents (SHA-256), so a retrained checkpoi
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
-import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -25,8 +26,8 @@ from typing import Any
 from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.harness import interrupts
-from gpc.harness.evaluation import EvalConfig, evaluate, write_results
-from gpc.harness.files import read_json, write_atomic
+from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
+from gpc.harness.files import check_out, read_json, write_atomic
 from gpc.harness.recipes import GT_SIM, PlannerRecipe
 
 GROUPS = ".groups"
@@ -50,17 +51,6 @@ def run_identity(recipe: PlannerRecipe, config: EvalConfig) -> dict[str, Any]:
     controller.get("planner", {}).pop("keep_futures", None)  # videos only
     return json.loads(json.dumps({"config": settings, "controller": controller,
                                   "checkpoints": {f: _digest(f) for f in files if f and f != GT_SIM and Path(f).is_file()}}))
-
-
-def check_out(out: Path) -> None:
-    """``out`` is (or can become) a folder this process may write, before any work is done."""
-    probe = out
-    while not probe.exists():
-        probe = probe.parent
-    if probe == out and not out.is_dir():
-        raise DataError(f"{out}: is a file; --out names a folder for results")
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        raise DataError(f"{out}: cannot be written here ({probe} is not a writable folder)")
 
 
 def _held(out: Path) -> Any:
@@ -123,3 +113,20 @@ def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool 
         write_results(result, out, f"{recipe.label}: {recipe.policy}")
         shutil.rmtree(out / GROUPS)
     return result
+
+
+def run_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_seeds: Sequence[int] = (0,),
+             resume: bool = False, overwrite: bool = False, on_group: Any = None) -> dict[str, Any]:
+    """`gpc eval`: ``config`` once per sampling seed (videos for the first only); with several, each run has its
+    own folder ``out/sampling-seed-S`` and ``out/summary.*`` holds the spread of their scores."""
+    out = Path(out)
+    check_out(out)
+    if len(sampling_seeds) == 1:
+        return run_into(out, recipe, dataclasses.replace(config, sampling_seed=sampling_seeds[0]), resume, overwrite, on_group)
+    results = []
+    for i, s in enumerate(sampling_seeds):
+        one = dataclasses.replace(config, sampling_seed=s)
+        if i:  # videos of the first sampling seed only
+            one = dataclasses.replace(one, videos=0, video_dir=None)
+        results.append(run_into(out / f"sampling-seed-{s}", recipe, one, resume, overwrite, on_group))
+    return write_spread(results, out, f"{recipe.label}: {recipe.policy}")

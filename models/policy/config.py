@@ -19,6 +19,7 @@ from gpc.models.training.config_io import PlainConfig
 from gpc.models.training.ema import EMAConfig
 
 PROFILES = ("cpu", "paper", "tiny")
+GOALS = ("fixed", "random")
 
 
 @dataclass(frozen=True)
@@ -75,10 +76,14 @@ class PolicyConfig(PlainConfig):
         return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, obs_shapes=pairs))
 
 
-def policy_profile(name: str, obs_type: str, layout: TaskLayout) -> Profile[PolicyConfig]:
+def policy_profile(name: str, obs_type: str, layout: TaskLayout, goal: str = "fixed",
+                   lr: float | None = None) -> Profile[PolicyConfig]:
     """``cpu``: narrow U-Net, DDIM-10, trains on 2 cores; ``paper``: Diffusion Policy's sizes,
     DDPM-100; ``tiny``: seconds-long runs for tests. The task's layout fills the action width and
-    where the agent sits in the state."""
+    where the agent sits in the state; ``goal="random"``: the policy also reads each episode's goal
+    (stores collected with random goals); ``lr``: another peak learning rate than the profile's."""
+    if goal not in GOALS:
+        raise ValueError(f"--goal {goal!r}: use one of {', '.join(GOALS)}")
     image = obs_type == "image"
     if name == "cpu":
         unet = UNetConfig(down_dims=(64, 128, 256), step_embed_dim=128)
@@ -103,6 +108,8 @@ def policy_profile(name: str, obs_type: str, layout: TaskLayout) -> Profile[Poli
         if not layout.state.agent_xy:
             raise ValueError(f"obs {obs_type!r} reads the agent's position; task {layout.name} has none in its state")
         encoder = dataclasses.replace(encoder, agent_dims=len(layout.state.agent_xy))
+    encoder = dataclasses.replace(encoder, goal=goal == "random")
+    optim = optim if lr is None else dataclasses.replace(optim, lr=lr)
     policy = PolicyConfig(task=layout.name, action_dim=layout.action.dim, encoder=encoder, unet=unet, sampler=sampler,
                           optim=optim)
     return Profile(policy, batch, steps)

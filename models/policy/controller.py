@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -30,15 +29,3 @@ class PolicyController:
         now = chunk[:, self.policy.action_slice.start :]  # the chunk from the current step on
         return Plan(actions=now[:, : self.policy.config.n_action_steps], chunk=now,
                     seconds={"policy": time.perf_counter() - t0})
-
-
-@dataclass(frozen=True)
-class PolicyControllerFactory:
-    """Picklable recipe for a ``PolicyController``: worker processes load the checkpoint themselves."""
-
-    checkpoint: str
-    sampling: SamplingConfig = SamplingConfig()
-    task: str | None = None
-
-    def __call__(self) -> PolicyController:
-        return PolicyController(PolicyModule.load_from_checkpoint(self.checkpoint, task=self.task), self.sampling)

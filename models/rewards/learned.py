@@ -107,8 +107,10 @@ class RewardPredictorConfig(PlainConfig):
             raise ValueError("shift augmentation needs frame_extent (the world units a frame spans); see with_task")
 
 
-def reward_profile(name: str, layout: TaskLayout) -> Profile[RewardPredictorConfig]:
-    """``cpu``: ResNet18 at width 32 on 64 px frames; ``paper``: full ResNet18 on 96 px; ``tiny``: tests."""
+def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
+                   lr: float | None = None) -> Profile[RewardPredictorConfig]:
+    """``cpu``: ResNet18 at width 32 on 64 px frames; ``paper``: full ResNet18 on 96 px; ``tiny``: tests.
+    ``input_size``: the frame size the network reads (match the world model's); ``lr``: another peak learning rate."""
     task = layout.name
     if name == "cpu":
         # 3.5M parameters; 3,000 steps took 14 min on one thread here (expert + exploration stores),
@@ -123,6 +125,10 @@ def reward_profile(name: str, layout: TaskLayout) -> Profile[RewardPredictorConf
         batch, steps = 16, 20
     else:
         raise ValueError(f"profile {name!r}: use one of {', '.join(PROFILES)}")
+    if input_size is not None:
+        config = dataclasses.replace(config, input_size=input_size)
+    if lr is not None:
+        config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
     return Profile(config.with_task(layout), batch, steps)
 
 

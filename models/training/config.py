@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 C = TypeVar("C")
 
@@ -72,3 +72,10 @@ class Profile(Generic[C]):
     config: C
     batch_size: int
     max_steps: int
+
+    def run(self, run_dir: Path, max_steps: int | None = None, max_epochs: int | None = None, batch_size: int | None = None,
+            **lightning: Any) -> RunConfig:
+        """A run of this profile: its step budget and batch size unless given (``max_epochs`` alone replaces the budget)."""
+        steps = max_steps if max_steps or max_epochs else self.max_steps
+        return RunConfig(run_dir=Path(run_dir), max_steps=steps, max_epochs=max_epochs, batch_size=batch_size or self.batch_size,
+                         **lightning)

@@ -321,8 +321,8 @@ def config_from_dict(data: Mapping[str, Any] | AnyWorldModelConfig) -> AnyWorldM
     return cls.from_dict(data)
 
 
-def world_model_profile(name: str, phase: int, layout: TaskLayout, obs: str = "state",
-                        frame: str | None = None) -> Profile[AnyWorldModelConfig]:
+def world_model_profile(name: str, phase: int, layout: TaskLayout, obs: str = "state", frame: str | None = None,
+                        unroll: int | None = None, feedback: str | None = None) -> Profile[AnyWorldModelConfig]:
     """Named sizes per observation type, laid out for the task.
 
     State: ``cpu`` (256x4 MLP, T = 16, trains on 2 cores), ``tiny`` (seconds-long test runs).
@@ -332,7 +332,21 @@ def world_model_profile(name: str, phase: int, layout: TaskLayout, obs: str = "s
     conditioning 256, frameskip 1: the paper's model, GPU only).
     ``frame`` (state): ``object`` adds the object-frame features of ``DynamicsConfig.object_frame``
     (the default when the task's object has an angle), ``world`` keeps world coordinates only.
+    ``unroll`` (phase 2): predictions per unrolled segment; ``feedback`` (image, phase 2): the frames fed back.
     """
+    profile = _profile(name, phase, layout, obs, frame)
+    if unroll is not None and phase != 2:
+        raise ValueError("--unroll applies to phase 2")
+    if feedback is not None:
+        if not isinstance(profile.config, VisualWorldModelConfig) or phase != 2:
+            raise ValueError(f"--feedback applies to --obs image --phase 2 and is one of {', '.join(FEEDBACK)}")
+        profile = dataclasses.replace(profile, config=dataclasses.replace(profile.config, feedback=feedback))
+    if unroll is not None:
+        profile = dataclasses.replace(profile, config=dataclasses.replace(profile.config, unroll=unroll))
+    return profile
+
+
+def _profile(name: str, phase: int, layout: TaskLayout, obs: str, frame: str | None) -> Profile[AnyWorldModelConfig]:
     if obs not in OBS_TYPES:
         raise ValueError(f"world model obs {obs!r}: use one of {', '.join(OBS_TYPES)}")
     if frame is not None and frame not in FRAMES:

@@ -42,6 +42,16 @@ LAYOUT = TaskLayout(
 )
 
 
+# GPC's tables (Qi et al. 2026; 100 seeds; vision: IoU score), keyed by gpc's controller labels (`gpc compare --paper`).
+PAPER = {
+    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882},
+    "pusht-state": {
+        "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
+        "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,
+    },
+}
+
+
 def scripted_policy(kind: str) -> ScriptedPolicy:
     """The privileged controller behind ``gpc collect`` (``expert``) and ``--explore``."""
     if kind == "expert":
@@ -121,6 +131,7 @@ TASK = Task(
     pose_coverage=pose_coverage,
     check_replay=check_replay,
     row_shapes={"keypoint": (9, 2), "goal_keypoint": (9, 2), "n_contacts": (1,)},
+    references=PAPER,
 )
 
 __all__ = ["ENV_ID", "LAYOUT", "TASK", "PushTEnv", "SimulatorModel", "geometry", "render"]
