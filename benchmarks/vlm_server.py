@@ -35,6 +35,7 @@ class Reply:
     content: str = "1"
     status: int = 200
     delay_s: float = 0.0
+    raw: bytes | None = None  # send these bytes as the whole (JSON-typed) body instead: a broken server
 
 
 @dataclass
@@ -105,6 +106,8 @@ class _Handler(BaseHTTPRequestHandler):
             time.sleep(reply.delay_s)
         if reply.status != 200:
             return self._send(reply.status, {"error": {"message": "scripted failure", "type": "server_error"}})
+        if reply.raw is not None:
+            return self._send(200, reply.raw)
         prompt = estimate_prompt_tokens(request)
         completion = max(1, math.ceil(len(reply.content) / 4))
         self._send(200, {
@@ -116,8 +119,8 @@ class _Handler(BaseHTTPRequestHandler):
                       "total_tokens": prompt + completion},
         })
 
-    def _send(self, status: int, payload: dict[str, Any]) -> None:
-        data = json.dumps(payload).encode()
+    def _send(self, status: int, payload: dict[str, Any] | bytes) -> None:
+        data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
         try:
             self.send_response(status)
             self.send_header("Content-Type", "application/json")

@@ -10,7 +10,7 @@ from torch.utils.data import DataLoader
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
-from gpc.datasets.sequence import WindowSpec, split_episodes
+from gpc.datasets.sequence import WindowSpec, split_episodes, window_starts
 from gpc.datasets.windows import IMAGE_KEYS, WindowDataset, load_stores
 
 
@@ -27,6 +27,7 @@ class DataConfig:
     obs_steps_override: int | None = None  # keep this many observation steps instead (world models)
     val_ratio: float = 0.05
     seed: int = 42
+    val_episodes: tuple[int, ...] | None = None  # these episodes held out (a run started from a checkpoint keeps its own)
     batch_size: int = 256
     num_workers: int = 0
 
@@ -53,7 +54,15 @@ class EpisodeDataModule(L.LightningDataModule):
         lengths = self.arrays.episode_lengths()
         if lengths.max() + config.spec.pad_before + config.spec.pad_after < config.horizon:
             raise DataError(f"horizon {config.horizon} is longer than every episode (longest {lengths.max()})")
-        self.train_episodes, self.val_episodes = split_episodes(self.arrays.n_episodes, config.val_ratio, config.seed)
+        if config.val_episodes is None:
+            self.train_episodes, self.val_episodes = split_episodes(self.arrays.n_episodes, config.val_ratio, config.seed)
+        else:
+            self.val_episodes = np.array(sorted(config.val_episodes), dtype=np.int64)
+            self.train_episodes = np.setdiff1d(np.arange(self.arrays.n_episodes), self.val_episodes)
+        for name, episodes in (("training", self.train_episodes), ("held-out", self.val_episodes)):
+            if len(episodes) and not len(window_starts(self.arrays.episode_ends, episodes, config.spec, strict=False)):
+                raise DataError(f"{', '.join(config.paths)}: no {name} episode is long enough for a window of "
+                                f"{config.horizon} steps (lower the horizon or --val-ratio, or record longer episodes)")
         mask = np.zeros(len(self.arrays.data[config.action_key]), dtype=bool)
         for i in self.train_episodes:
             start = int(self.arrays.episode_ends[i - 1]) if i else 0

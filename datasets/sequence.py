@@ -8,7 +8,9 @@ step of every episode is seen as the "current" observation at least once.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +33,7 @@ class WindowSpec:
             raise DataError(f"padding ({self.pad_before}, {self.pad_after}) must lie in [0, horizon={self.horizon})")
 
 
-def window_starts(episode_ends: np.ndarray, episodes: np.ndarray, spec: WindowSpec) -> np.ndarray:
+def window_starts(episode_ends: np.ndarray, episodes: np.ndarray, spec: WindowSpec, strict: bool = True) -> np.ndarray:
     """``(N, 3)`` rows of (episode start, episode length, window offset in the episode)."""
     rows = []
     for i in episodes:
@@ -40,6 +42,8 @@ def window_starts(episode_ends: np.ndarray, episodes: np.ndarray, spec: WindowSp
         offsets = np.arange(-spec.pad_before, length - spec.horizon + spec.pad_after + 1)
         rows.append(np.stack([np.full_like(offsets, start), np.full_like(offsets, length), offsets], axis=1))
     if not rows or sum(len(r) for r in rows) == 0:
+        if not strict:
+            return np.zeros((0, 3), np.int64)
         raise DataError(
             f"no window of {spec.horizon} steps fits the selected episodes (horizon longer than every episode?)"
         )
@@ -71,9 +75,48 @@ def recorded_split(record: dict[str, Any]) -> tuple[int, float] | None:
     return int(record.get("split_seed", record["seed"])), float(record["val_ratio"])
 
 
-def recorded_held_out(n_episodes: int, record: dict[str, Any]) -> np.ndarray:
-    """The episodes a run record held out from training."""
+def identities(sources: Sequence[str], counts: Sequence[int], episodes: Sequence[int]) -> list[list[Any]]:
+    """``[store, episode]`` of each of the concatenated stores' ``episodes`` (global indices), the store by its
+    absolute path: what a checkpoint records of its held-out episodes, whatever order the stores come in."""
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    out = []
+    for i in episodes:
+        s = int(np.searchsorted(starts, i, side="right") - 1)
+        out.append([str(Path(sources[s]).resolve()), int(i - starts[s])])
+    return out
+
+
+def select(wanted: Sequence[Sequence[Any]], sources: Sequence[str], counts: Sequence[int], strict: bool = True) -> np.ndarray:
+    """Global indices, over the given stores, of the ``[store, episode]`` identities ``wanted``; a store is found by
+    its absolute path, or else by its name when only one given store has it. ``strict``: missing stores are named
+    in an error (else their episodes are left out)."""
+    starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+    paths = [str(Path(s).resolve()) for s in sources]
+    names = [Path(p).name for p in paths]
+    chosen, missing = [], []
+    for store, episode in wanted:
+        if store in paths:
+            s = paths.index(store)
+        elif names.count(Path(store).name) == 1:
+            s = names.index(Path(store).name)
+        else:
+            missing.append(store)
+            continue
+        if episode < counts[s]:
+            chosen.append(starts[s] + int(episode))
+    if missing and strict:
+        raise DataError(f"the checkpoint held out episodes of {', '.join(sorted(set(missing)))}; pass those stores "
+                        "with --dataset (or --split all with stores it never saw)")
+    return np.array(sorted(chosen), dtype=np.int64)
+
+
+def recorded_held_out(record: dict[str, Any], sources: Sequence[str], counts: Sequence[int], strict: bool = True) -> np.ndarray:
+    """The episodes, among the given stores, that a run record held out from training: by their identity when the
+    record lists them (``held_out``), else by its split seed and ratio over the stores in the order given.
+    ``strict``: a recorded store missing from ``sources`` is an error (else its episodes are left out)."""
+    if record.get("held_out") is not None:
+        return select(record["held_out"], sources, counts, strict)
     split = recorded_split(record)
     if split is None:
         raise DataError("the checkpoint does not record its training split; pass --split all with held-out data")
-    return split_episodes(n_episodes, split[1], split[0])[1]
+    return split_episodes(int(sum(counts)), split[1], split[0])[1]

@@ -24,6 +24,7 @@ class EpisodeArrays:
     data: dict[str, np.ndarray]
     episode_ends: np.ndarray
     sources: list[str] = field(default_factory=list)
+    counts: list[int] = field(default_factory=list)  # episodes per source, in order
 
     @property
     def n_episodes(self) -> int:
@@ -38,7 +39,7 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str], check_finite: 
     if not paths:
         raise DataError("no dataset given (pass --dataset PATH)")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    ends, offset = [], 0
+    ends, offset, counts = [], 0, []
     for path in paths:
         store = EpisodeStore.open(path)
         if store.n_episodes == 0:
@@ -57,8 +58,9 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str], check_finite: 
             parts[key].append(arr)
         ends.append(store.episode_ends + offset)
         offset += store.n_steps
+        counts.append(store.n_episodes)
     return EpisodeArrays(
-        {k: np.concatenate(v) for k, v in parts.items()}, np.concatenate(ends), [str(p) for p in paths]
+        {k: np.concatenate(v) for k, v in parts.items()}, np.concatenate(ends), [str(p) for p in paths], counts
     )
 
 

@@ -163,7 +163,8 @@ def test_an_unreachable_endpoint_falls_back_and_the_eval_goes_on(caplog):
     for episode in (0, 0, 0, 1, 1):  # one warning per episode, every fallback counted
         assert vlm(futures(3, seed=episode), episode=episode).tolist() == [1.0, 0.0, 0.0]
     stats = vlm.stats
-    assert stats["fell_back"] == 5 and stats["fallbacks"]["unreachable"] == 5 and stats["queries"] == 10
+    assert stats["fell_back"] == 5 and stats["fallbacks"]["unreachable"] == 5
+    assert stats["queries"] == 5 and stats["retries"] == 0  # a refused connection is not retried (timeouts, 5xx, 429 are)
     messages = warnings_of(caplog)
     assert len(messages) == 2 and "episode 0" in messages[0] and "episode 1" in messages[1]
     assert all("unreachable" in m and KEY not in m for m in messages)
@@ -232,3 +233,15 @@ def test_pusht_frames_from_the_real_renderer_and_the_registration_fallback():
     tile = image[:SIZE, SIZE + GAP:2 * SIZE + GAP]
     np.testing.assert_array_equal(tile[24:], render_state(states[1, -1].numpy(), GOAL_POSE, SIZE)[24:])
     assert vlm.stats["fallbacks"]["malformed"] == 1
+
+
+@pytest.mark.parametrize("raw", [b"<html>502 from a proxy</html>", b'{"choices": "no"}', b"", b'{"choices": [{"message": {}}]}',
+                                 b'{"choices": [{"message": {"content": "' + b"9" * 200_000 + b'"}}]}'])
+def test_a_broken_answer_of_any_shape_falls_back_and_the_eval_goes_on(raw):
+    """HTTP 200 with a body that is not JSON, JSON of another schema, nothing, or a huge answer: counted, never raised."""
+    with ScriptedChatServer([Reply(raw=raw)]) as server:
+        vlm = reward(server, fallback=None)
+        assert vlm(futures(3)).tolist() == [1.0, 0.0, 0.0]  # the first proposal
+    stats = vlm.stats
+    assert stats["fell_back"] == 1 and stats["queries"] == 1 and stats["retries"] == 0
+    assert stats["fallbacks"]["malformed"] + stats["fallbacks"]["out_of_range"] == 1

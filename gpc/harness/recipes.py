@@ -137,6 +137,10 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     if unseen:
         raise DataError(f"{policy}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "
                         f"observe (a policy trained with --goal random needs --goal random)")
+    for key, shape in loaded.config.encoder.obs_shapes:
+        want = task.row_shape(key)
+        if want is not None and tuple(shape) != want:
+            raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {task.name} observes {want}")
     if planner == BC:
         if world_model or k or m:
             raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")

@@ -31,10 +31,16 @@ def describe_store(path: Path) -> dict[str, Any]:
         "episode_length": _stats(lengths) if store.n_episodes else {},
         "attrs": store.attrs,
     }
-    if "n_contacts" in store.keys and store.n_steps:
+    task_name = _task_of(store)
+    if task_name:
+        try:  # the task's figures only for a store laid out as the task's
+            check_stores(get_task(task_name), [path], [k for k in ("state", "action", "n_contacts") if k in store.keys])
+        except (DataError, ValueError) as exc:
+            info["task_note"] = f"no task figures: {exc}"
+            task_name = ""
+    if "n_contacts" in store.keys and store.n_steps and task_name:
         info["contact_fraction"] = float((store.read("n_contacts")[:, 0] > 0).mean())
     scores = store.episode_scores()
-    task_name = _task_of(store)
     if (scores is None or not np.all(np.isfinite(scores))) and task_name and "state" in store.keys and store.n_episodes:
         scores = get_task(task_name).episode_scores(store.read("state"), store.episode_ends)
     if scores is not None and store.n_episodes:
@@ -52,9 +58,11 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 
 def episode_video(path: Path, episode: int, out: Path | None) -> Path:
     """One episode as an MP4: its recorded frames, or its states drawn by the task."""
+    out = out or path.with_name(f"{path.name.removesuffix('.zarr')}_ep{episode}.mp4")
+    if out.is_dir():
+        raise DataError(f"{out}: is a folder; --out names the .mp4 file to write")
     store = EpisodeStore.open(path)
     ep = store.episode(episode, [k for k in ("img", "state") if k in store.keys] or None)
-    out = out or path.with_name(f"{path.name.removesuffix('.zarr')}_ep{episode}.mp4")
     if "img" in ep:
         frames = np.clip(np.rint(ep["img"]), 0, 255).astype(np.uint8)
         write_mp4(frames, out, scale=4)

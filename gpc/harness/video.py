@@ -10,11 +10,14 @@ import numpy as np
 
 
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, scale: int = 1) -> int:
-    """Write RGB uint8 frames; returns how many were written. Written to a temporary name first."""
+    """Write RGB uint8 frames; returns how many were written. Written to a temporary name first, which a failure
+    removes: the path holds a whole video or what it held before."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; name the .mp4 file to write")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.partial.mp4")
-    writer, n = None, 0
+    writer, n, done = None, 0, False
     try:
         for frame in frames:
             frame = np.asarray(frame, dtype=np.uint8)
@@ -27,11 +30,14 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
                     raise OSError(f"{path}: OpenCV cannot write MP4 here")
             writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
             n += 1
+        if writer is None:
+            raise ValueError(f"{path}: no frames to write")
+        writer.release()
+        tmp.replace(path)
+        done = True
     finally:
         if writer is not None:
             writer.release()
-    if n == 0:
-        tmp.unlink(missing_ok=True)
-        raise ValueError(f"{path}: no frames to write")
-    tmp.replace(path)
+        if not done:
+            tmp.unlink(missing_ok=True)
     return n

@@ -55,8 +55,12 @@ class PlannerConfig:
             raise ValueError(f"--M {self.opt_steps}: {self.kind} needs at least one step")
         if self.kind == "rank" and self.opt_steps:
             raise ValueError(f"--M {self.opt_steps}: rank takes no gradient steps (use rank-opt)")
-        if self.lr <= 0 or self.temperature <= 0 or not 0 < self.init_std <= 1:
-            raise ValueError(f"--lr {self.lr} and --temperature {self.temperature} must be > 0, init_std in (0, 1]")
+        if self.lr <= 0:
+            raise ValueError(f"--lr {self.lr}: the step size must be > 0")
+        if self.temperature <= 0:
+            raise ValueError(f"temperature {self.temperature}: MPPI's softmax temperature must be > 0")
+        if not 0 < self.init_std <= 1:
+            raise ValueError(f"init_std {self.init_std}: must lie in (0, 1] (a share of the action range)")
         if not 0 < self.elite_fraction <= 1:
             raise ValueError(f"--elite-fraction {self.elite_fraction}: must lie in (0, 1]")
         if (self.action_low is None) != (self.action_high is None):

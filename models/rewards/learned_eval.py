@@ -31,7 +31,7 @@ def _episodes(datasets: Sequence[str | os.PathLike], split: str, record: dict[st
     pairs = [(s, i) for s in stores for i in range(s.n_episodes)]
     if split == "all":
         return pairs
-    chosen = recorded_held_out(len(pairs), record)
+    chosen = recorded_held_out(record, [str(p) for p in datasets], [s.n_episodes for s in stores])
     if len(chosen) == 0:
         raise DataError("the predictor was trained without held-out episodes; pass --split all with a separate store")
     return [pairs[i] for i in chosen]

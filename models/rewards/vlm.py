@@ -38,6 +38,7 @@ DEFAULT_PROMPT = (
 )
 GAP = 2  # px of grey between tiles, so the model sees where one outcome ends
 REASONS = ("timeout", "http_error", "unreachable", "malformed", "out_of_range")
+MAX_ANSWER = 1000  # characters of an answer kept (parsed and cached); the answer is a number
 _NUMBER = re.compile(r"\d+")
 
 Render = Callable[[np.ndarray, "np.ndarray | None"], np.ndarray]
@@ -52,7 +53,7 @@ class VLMConfig:
     model: str = "Qwen/Qwen2.5-VL-7B-Instruct"
     temperature: float = 0.2  # low: the same futures should get the same pick
     timeout_s: float = 30.0  # per request
-    max_retries: int = 2  # extra attempts after a timeout, 5xx, 429 or connection error
+    max_retries: int = 2  # extra attempts after a timeout, a 5xx or a 429 (a refused or failed connection is not retried)
     backoff_s: float = 1.0  # wait before retry i (i = 1, 2, ...) is backoff_s * 2**(i - 1)
     api_key_env: str = "OPENAI_API_KEY"  # the variable holding the key; unset -> a dummy (local servers ignore it)
     prompt: str = DEFAULT_PROMPT  # {k}: number of candidates, {task}: the task description
@@ -242,13 +243,17 @@ class VLMReward:
                 return self._content(response)
             except openai.APITimeoutError:
                 failure = _QueryFailed("timeout", f"no answer within {cfg.timeout_s} s")
-            except openai.APIConnectionError as err:
+            except openai.APIConnectionError as err:  # refused, unresolvable, reset: retrying the same second will not help
                 failure = _QueryFailed("unreachable", f"cannot connect to {cfg.base_url} ({type(err.__cause__).__name__})")
+                break
             except openai.APIStatusError as err:
                 failure = _QueryFailed("http_error", f"HTTP {err.status_code} from {cfg.base_url}")
                 if err.status_code < 500 and err.status_code != 429:
                     break  # a client error will not go away on retry
-            except openai.OpenAIError as err:  # an unreadable response body
+            except _QueryFailed as err:  # a readable response without an answer in it
+                failure = err
+                break
+            except Exception as err:  # an unreadable body (not JSON, another schema): any failure of a reward falls back
                 failure = _QueryFailed("malformed", f"unreadable response ({type(err).__name__})")
                 break
             finally:
@@ -264,7 +269,7 @@ class VLMReward:
         content = getattr(getattr(choices[0], "message", None), "content", None) if choices else None
         if not isinstance(content, str):
             raise _QueryFailed("malformed", "response has no message content")
-        return content
+        return content[:MAX_ANSWER]
 
     def _get_client(self) -> Any:
         if self._client is None:

@@ -20,6 +20,7 @@ raises ``TrainingDiverged`` after ``last.ckpt`` has been written with the last g
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -39,7 +40,8 @@ from lightning.pytorch.utilities import rank_zero_only
 from gpc.datasets.datamodule import EpisodeDataModule
 from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
-from gpc.datasets.sequence import recorded_split
+from gpc.datasets.sequence import identities, recorded_held_out, recorded_split
+from gpc.datasets.store import EpisodeStore
 from gpc.models.training.checkpoint import read_checkpoint
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
@@ -190,11 +192,19 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
 
     # A run started from a checkpoint holds out the episodes it held out, whatever its own seed:
     # otherwise its "held-out" episodes would have been trained on.
-    split = (recorded_split(ckpt["hyper_parameters"].get("data", {})) if ckpt else None) or (run.seed, run.val_ratio)
-    data = EpisodeDataModule(cls.data_config(config, paths, run, split))
+    earlier = ckpt["hyper_parameters"].get("data", {}) if ckpt else {}
+    split = recorded_split(earlier) or (run.seed, run.val_ratio)
+    windows = cls.data_config(config, paths, run, split)
+    if earlier.get("held_out") is not None:  # the same episodes, found by identity whatever the stores' order
+        counts = [EpisodeStore.open(p).n_episodes for p in paths]
+        kept = recorded_held_out(earlier, paths, counts, strict=False)
+        if len(kept):  # (none when the run trains on other stores: then its own split holds out theirs)
+            windows = dataclasses.replace(windows, val_episodes=tuple(int(i) for i in kept))
+    data = EpisodeDataModule(windows)
     config = cls.fit_to_data(config, data.arrays, paths[0], resumed=run.resume)
     record = {"datasets": list(paths), "val_ratio": split[1], "seed": run.seed, "split_seed": split[0],
-              "init": None if init is None else str(init)}
+              "init": None if init is None else str(init),
+              "held_out": identities(data.arrays.sources, data.arrays.counts, data.val_episodes.tolist())}
     (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
     _write_run_record(run_dir, cls.KIND, config, record, run)
 

@@ -62,7 +62,7 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
     h, t = module.n_obs_steps, horizon or module.config.horizon
     arrays = load_stores([str(p) for p in datasets], tuple(keys))
     if split == "val":
-        chosen = recorded_held_out(arrays.n_episodes, module.data_record)
+        chosen = recorded_held_out(module.data_record, arrays.sources, arrays.counts)
         if len(chosen) == 0:
             raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
     else:
