@@ -78,6 +78,9 @@ class EpisodeStore:
             raise DataError(f"{path}: no such file or directory")
         if not path.is_dir() or not ((path / ".zgroup").exists() or (path / "zarr.json").exists()):
             raise DataError(f"{path}: not a Zarr episode store (no .zgroup or zarr.json)")
+        bad = _bad_metadata(path)  # zarr reads array metadata lazily, and its JSON errors name no file
+        if bad is not None:
+            raise DataError(f"{bad}: unreadable Zarr store (its metadata is not valid JSON)")
         try:
             group = zarr.open_group(str(path), mode="r+" if writable else "r")
         except Exception as exc:  # zarr raises several types for unreadable metadata

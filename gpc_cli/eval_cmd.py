@@ -112,6 +112,7 @@ def plan_one(
     goal: Goal = "fixed",
     max_steps: MaxSteps = None,
     threads: Threads = 2,
+    resume: Resume = False,
     overwrite: Overwrite = False,
 ) -> None:
     """Run one planner on one seed; the MP4 shows, per decision, the K predicted futures and their rewards."""
@@ -125,7 +126,7 @@ def plan_one(
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), task=recipe.task, goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
-    result = run_into(out, recipe, config, overwrite=overwrite)
+    result = run_into(out, recipe, config, resume, overwrite)
     row = result["episodes"][0]
     typer.echo(f"seed {seed}: score {row['score']:.3f}, success {row['success']}, {row['steps']} steps; "
                f"wrote {out / f'seed{seed}.mp4'} and {out / 'summary.md'}")

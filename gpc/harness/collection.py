@@ -119,6 +119,19 @@ def _ours(out: Path) -> None:
                         "(remove it yourself or choose another --out)")
 
 
+def check_job(job: CollectJob) -> None:
+    """Refuse, reading only, a ``--out`` the job may not write (before its lock exists: nothing is left behind)."""
+    out = Path(job.out)
+    if not out.exists():
+        check_out(out.parent)
+    elif job.overwrite:
+        _ours(out)
+    elif not out.is_dir():
+        raise DataError(f"{out}: is a file, not a store; choose another --out")
+    else:
+        _matching(EpisodeStore.open(out), job.provenance(), out)
+
+
 def _staging(out: Path) -> tuple[Path, Path]:
     """Where a replacement is written before it takes the store's place, and where the old store waits meanwhile."""
     return out.parent / f".{out.name}.new", out.parent / f".{out.name}.old"
@@ -142,13 +155,10 @@ def open_for_job(job: CollectJob) -> tuple[EpisodeStore, bool]:
     """
     wanted, out = job.provenance(), Path(job.out)
     attrs = {**wanted, "gpc_version": __version__, "created": datetime.now(timezone.utc).isoformat()}
+    check_job(job)
     if out.exists() and not job.overwrite:
-        if not out.is_dir():
-            raise DataError(f"{out}: is a file, not a store; choose another --out")
-        _matching(EpisodeStore.open(out), wanted, out)
         return EpisodeStore.open(out, writable=True), False
     if out.exists():
-        _ours(out)
         staging, _ = _staging(out)
         if staging.exists():
             shutil.rmtree(staging)  # an earlier replacement that was stopped: start it again
@@ -177,6 +187,7 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
     A stop (``Interrupted``) between episodes keeps every whole episode written so far.
     """
     out = Path(job.out)
+    check_job(job)
     with exclusive(out, "store"):
         _finish_swap(out)
         store, replacing = open_for_job(job)
@@ -245,6 +256,11 @@ def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "
             res[key].append(value)
         if on_episode:
             on_episode(row)
+        try:
+            interrupts.check()
+        except interrupts.Interrupted as stop:
+            stop.kept = f"{len(res['scores'])} of {len(res['seeds'])} episodes were scored; nothing is written"
+            raise
     res.update(mean_score=float(np.mean(res["scores"])), success_rate=float(np.mean(res["successes"])),
                median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
     res["markdown"] = (

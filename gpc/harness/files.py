@@ -40,5 +40,9 @@ def check_out(out: Path) -> None:
         probe = probe.parent
     if probe == out and not out.is_dir():
         raise DataError(f"{out}: is a file; --out names a folder for results")
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+    if not probe.is_dir():
+        raise DataError(f"{out}: cannot be written here ({probe} is a file, not a folder)")
+    if os.statvfs(probe).f_flag & os.ST_RDONLY:
+        raise DataError(f"{out}: cannot be written here ({probe} is on a read-only file system)")
+    if not os.access(probe, os.W_OK | os.X_OK):
         raise DataError(f"{out}: cannot be written here ({probe} is not a writable folder)")

@@ -61,8 +61,8 @@ def _held(out: Path) -> Any:
     return None
 
 
-def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> list[dict[str, Any]]:
-    """Make ``out`` ready for this run; returns the groups an earlier, stopped run of it finished.
+def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> None:
+    """Refuse, reading only, results ``out`` holds that this run may not touch.
 
     ``resume``: go on with the same run (refused for another); ``overwrite``: replace another run's
     results; both: go on if it is the same run, else replace.
@@ -75,7 +75,13 @@ def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) 
                             "--resume only finishes the same run (pass --overwrite to replace them)")
         raise DataError(f"{out}: already holds results; pass --resume to finish the same run or --overwrite to "
                         "replace them, or choose another --out")
-    if held is not None and not (resume and same):
+
+
+def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> list[dict[str, Any]]:
+    """Make ``out`` ready for this run (see ``check_results``); returns the groups an earlier, stopped run of it finished."""
+    check_results(out, identity, resume, overwrite)
+    held = _held(out)
+    if held is not None and not (resume and held == identity):
         for name in RESULT_FILES:
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / GROUPS, ignore_errors=True)
@@ -91,6 +97,7 @@ def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool 
     out = Path(out)
     check_out(out)
     identity = run_identity(recipe, config)
+    check_results(out, identity, resume, overwrite)
     with exclusive(out, "results folder"):
         if resume and (out / "summary.json").is_file() and _held(out) == identity and not (out / GROUPS).exists():
             return {**read_json(out / "summary.json"), "episodes": read_json(out / "episodes.json")}

@@ -233,7 +233,11 @@ def check_lightning(run: RunConfig) -> None:
     if not (devices == "auto" or (isinstance(devices, int) and devices >= 1)
             or (isinstance(devices, str) and devices.isdigit() and int(devices) >= 1)):
         raise ValueError(f"--devices {devices!r}: use a number of devices (at least 1) or auto")
+    quiet = [logging.getLogger(n) for n in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero")]
+    levels = [q.level for q in quiet]
     try:
+        for q in quiet:  # the trial Trainer would announce the hardware a second time
+            q.setLevel(logging.WARNING)
         L.Trainer(accelerator=run.accelerator, devices=_devices(run), strategy=run.strategy, num_nodes=run.num_nodes,
                   precision=run.precision, logger=False, enable_checkpointing=False,  # type: ignore[arg-type]
                   enable_progress_bar=False, enable_model_summary=False)
@@ -241,6 +245,9 @@ def check_lightning(run: RunConfig) -> None:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"--accelerator {run.accelerator} --devices {run.devices} --strategy {run.strategy} "
                          f"--precision {run.precision}: Lightning cannot run this here ({first[:200]})") from None
+    finally:
+        for q, level in zip(quiet, levels):
+            q.setLevel(level)
 
 
 def _devices(run: RunConfig) -> int | str:
