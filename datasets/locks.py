@@ -20,8 +20,32 @@ from gpc.datasets.errors import DataError
 
 
 def lock_path(target: str | os.PathLike) -> Path:
-    target = Path(target).absolute()
+    """Beside the target itself: every path to it (a symbolic link, ``..``) takes the same lock."""
+    target = Path(os.path.realpath(target))
     return target.parent / f".{target.name}.lock"
+
+
+def _busy(target: str | os.PathLike, what: str, fd: int) -> DataError:
+    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+    return DataError(f"{target}: another gpc process (pid {holder}) is writing this {what}; wait for it to finish or stop it")
+
+
+def check_free(target: str | os.PathLike, what: str) -> None:
+    """Refuse at once, creating nothing, a target another process holds (``exclusive`` checks again when it locks)."""
+    try:
+        fd = os.open(lock_path(target), os.O_RDONLY)
+    except OSError:
+        return  # no lock file: nobody has written here
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                raise _busy(target, what, fd) from None
+            raise
+        fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
 
 
 @contextmanager
@@ -42,9 +66,7 @@ def exclusive(target: str | os.PathLike, what: str) -> Iterator[None]:
         except OSError as exc:
             if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                 raise
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            raise DataError(f"{target}: another gpc process (pid {holder}) is writing this {what}; "
-                            "wait for it to finish or stop it") from None
+            raise _busy(target, what, fd) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         try:

@@ -111,6 +111,10 @@ class EpisodeStore:
             raise DataError(f"{self.path}: missing key meta/episode_ends")
         if "data" not in self.root:
             raise DataError(f"{self.path}: missing group data/")
+        for part in ("data", "meta"):  # a node whose .zarray is damaged reads back as a group
+            for name in _group(self.root[part]).keys():
+                if not isinstance(_group(self.root[part])[name], zarr.Array):
+                    raise DataError(f"{self.path / part / name / '.zarray'}: not a readable Zarr array (damaged metadata)")
         raw = _array(self.root["meta/episode_ends"])
         if not np.issubdtype(raw.dtype, np.integer):
             raise DataError(f"{self.path}: meta/episode_ends holds {raw.dtype} values, not integers")
@@ -237,22 +241,24 @@ class EpisodeStore:
             raise DataError(f"{self.path}: episode arrays must be non-empty and equally long, got {lengths}")
         if self.n_episodes and set(data) != set(self.keys):
             raise DataError(f"{self.path}: episode keys {sorted(data)} differ from the store's {self.keys}")
-        for key, value in data.items():
-            value = np.asarray(value)
+        data = {k: np.asarray(v) for k, v in data.items()}
+        group, meta = _group(self.root["data"]), _group(self.root["meta"])
+        for key, value in data.items():  # every check before the first write: a refused episode changes nothing
             if np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
                 raise DataError(f"{self.path}: refusing to write NaN or inf into data/{key}")
-            if key not in _group(self.root["data"]):
+            if key in group and _array(group[key]).shape[1:] != value.shape[1:]:
+                raise DataError(f"{self.path}: data/{key} has rows {_array(group[key]).shape[1:]}, episode has {value.shape[1:]}")
+        for name in ("episode_seeds", "episode_scores"):
+            if name not in meta:
+                raise DataError(f"{self.path}: meta/{name} is missing (not a store gpc can append to)")
+        for key, value in data.items():
+            if key not in group:
                 row = int(np.prod(value.shape[1:])) * value.dtype.itemsize
                 chunk = max(1, min(4096, _CHUNK_BYTES // max(1, row)))
-                _group(self.root["data"]).create_array(
-                    key, shape=(0,) + value.shape[1:], chunks=(chunk,) + value.shape[1:],
-                    dtype=value.dtype, compressors=_compressor(),
-                )
-            arr = _array(_group(self.root["data"])[key])
-            if arr.shape[1:] != value.shape[1:]:
-                raise DataError(f"{self.path}: data/{key} has rows {arr.shape[1:]}, episode has {value.shape[1:]}")
+                group.create_array(key, shape=(0,) + value.shape[1:], chunks=(chunk,) + value.shape[1:],
+                                   dtype=value.dtype, compressors=_compressor())
+            arr = _array(group[key])
             arr.append(value.astype(arr.dtype, copy=False), axis=0)
-        meta = _group(self.root["meta"])
         _array(meta["episode_seeds"]).append(np.array([seed], dtype=np.int64))
         _array(meta["episode_scores"]).append(np.array([score], dtype=np.float64))
         new_end = self.n_steps + length

@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 import typer
 from typer.core import TyperGroup
 
-from gpc.harness.interrupts import Interrupted
+from gpc.harness.interrupts import Interrupted, requested
 
 USER_ERRORS = (ValueError, KeyError, OSError)
 
@@ -40,7 +40,11 @@ class OneLineErrors(TyperGroup):
              standalone_mode: bool = True, windows_expand_args: bool = True, **extra: Any) -> Any:
         extra["complete_var"], extra["windows_expand_args"] = complete_var, windows_expand_args
         try:
-            return super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+            done = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+            signum = requested()
+            if signum is not None:  # a short command that had no safe point to stop at: still not exit 0
+                raise Interrupted(signum, "the command finished before it could stop; what it wrote is complete")
+            return done
         except typer.Abort:
             fail("stopped before finishing; nothing was left half written", 130, "stopped by SIGINT")
         except typer.Exit as exc:

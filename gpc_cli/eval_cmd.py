@@ -88,7 +88,7 @@ def eval_run(
 
     from gpc.cli.reports import parse_seeds
     from gpc.harness.evaluation import EvalConfig
-    from gpc.harness.results import check_out, run_eval
+    from gpc.harness.results import check_eval, check_out, run_eval
 
     assert planning is not None  # with_planning_options passes them
     check_out(out)
@@ -96,6 +96,7 @@ def eval_run(
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=test_seeds, task=recipe.task, goal=goal, max_steps=max_steps, batch=batch, workers=workers,
                         threads=threads, video_dir=str(out / "videos") if videos else None, videos=videos)
+    check_eval(out, recipe, config, samplings, resume, overwrite)  # before the bar: a refusal prints one line
     with Progress() as bar:
         tid = bar.add_task(recipe.label, total=len(test_seeds) * len(samplings))
         run_eval(out, recipe, config, samplings, resume, overwrite, on_group=lambda g: bar.advance(tid, len(g["episodes"])))
@@ -141,11 +142,17 @@ def compare(
     paper: str | None = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
 ) -> None:
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
-    from gpc.harness.comparison import compare_runs, plot_comparison, write_comparison
+    from gpc.datasets.locks import exclusive
+    from gpc.harness import interrupts
+    from gpc.harness.comparison import check_compare_out, compare_runs, plot_comparison, write_comparison
 
+    check_compare_out(out)
     table = compare_runs(baseline, runs, ceiling)
-    md = write_comparison(table, out, title, paper)
-    plot = plot_comparison(table, out.with_suffix(".png"))
+    interrupts.check()
+    with exclusive(out, "comparison"):
+        check_compare_out(out)
+        md = write_comparison(table, out, title, paper)
+        plot = plot_comparison(table, out.with_suffix(".png"))
     typer.echo(md)
     typer.echo(f"wrote {out}, {out.with_suffix('.json')} and {plot}")
 

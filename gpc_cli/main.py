@@ -107,15 +107,20 @@ def check_sim(
 ) -> None:
     """Replay recorded actions and re-render recorded states; print how closely they match."""
     from gpc.cli.reports import print_check
+    from gpc.harness import interrupts
+    from gpc.harness.files import check_file_out, write_atomic
 
     check = get_task(task).check_replay
     if check is None:
         raise ValueError(f"--task {task}: this task has no replay check")
+    if out:
+        check_file_out(out, ".json")
     report = check(data, episodes, frame_stride)
+    interrupts.check()
     print_check(report)
     if out:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2))
+        write_atomic(out, json.dumps(report, indent=2))
 
 
 @app.command("eval-expert")
@@ -133,7 +138,13 @@ def eval_expert(
 
 
 def main() -> None:
+    import logging
+
     from gpc.harness.interrupts import deferred_signals
+
+    # Zarr writes chunks on its own event loop; after a failed write (a full disk) the chunks still pending
+    # would be reported at exit as "Task was destroyed but it is pending!" below gpc's one line.
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL)
 
     with deferred_signals():  # Ctrl-C and SIGTERM stop at the next safe point, with what was kept
         app()

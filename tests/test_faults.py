@@ -23,7 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zarr
+from typer.testing import CliRunner
 
+from gpc.cli.main import app
 from gpc.datasets.store import EpisodeStore
 from gpc.harness.collection import CollectJob, collect
 from gpc.models.policy.config import policy_profile
@@ -46,8 +48,16 @@ def gpc(*args: str, cwd: Path = ROOT, timeout: int = 300) -> subprocess.Complete
     return subprocess.run([*GPC, *args], cwd=cwd, env=ENV, capture_output=True, text=True, timeout=timeout)
 
 
-def spawn(*args: str, cwd: Path = ROOT) -> subprocess.Popen:
-    return subprocess.Popen([*GPC, *args], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def spawn(*args: str, cwd: Path = ROOT, group: bool = False) -> subprocess.Popen:
+    """``group``: in a process group of its own, as a shell job is (``kill -- -PGID`` reaches its workers too)."""
+    return subprocess.Popen([*GPC, *args], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=group)
+
+
+def inline(*args: str) -> tuple[int, str]:
+    """`gpc ARGS` in this process through Typer's runner (for refusals at the door: no interpreter start-up)."""
+    res = CliRunner().invoke(app, list(args))
+    return res.exit_code, res.output
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 120.0) -> None:
@@ -144,6 +154,45 @@ def test_a_replacement_killed_midway_leaves_the_old_store_and_finishes_when_reru
     assert not (tmp_path / ".s.zarr.new").exists() and not (tmp_path / ".s.zarr.old").exists()
 
 
+def test_folders_named_like_gpc_staging_places_are_left_alone(tmp_path):
+    """gpc touches ``.NAME.old`` / ``.NAME.new`` only as it left them (its journal, its stores), never a user's."""
+    old = tmp_path / ".mine.old"
+    old.mkdir()
+    (old / "thesis.tex").write_text("years of work")
+    out = tmp_path / "mine"
+    assert gpc("collect", "--out", str(out), "--episodes", "1", *FAST).returncode == 0
+    (tmp_path / ".mine.new").mkdir()
+    (tmp_path / ".mine.new" / "data.csv").write_text("mine too")
+    before = digest(tmp_path)
+    one_line(gpc("collect", "--out", str(out), "--episodes", "1", "--overwrite", *FAST), 2, ".mine.new", "move it away")
+    assert digest(tmp_path) == before
+
+
+def test_a_store_reached_through_a_symbolic_link_has_one_lock_and_keeps_its_link(tmp_path):
+    real, alias = tmp_path / "real.zarr", tmp_path / "alias.zarr"
+    alias.symlink_to(real.name)
+    first = spawn("collect", "--out", str(real), "--episodes", "12", "--explore", "--no-images", "--max-steps", "300")
+    wait_for(lambda: EpisodeStore.open(real).n_episodes >= 1)
+    one_line(gpc("collect", "--out", str(alias), "--episodes", "12", "--explore", "--no-images", "--max-steps", "300"),
+             2, f"pid {first.pid}", "writing this store")
+    finish(first, signal.SIGKILL)
+    assert gpc("collect", "--out", str(alias), "--episodes", "2", "--overwrite", *FAST).returncode == 0
+    assert alias.is_symlink() and EpisodeStore.open(real).n_episodes == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".real.zarr.lock", "alias.zarr", "real.zarr"]
+
+
+def test_a_refused_resume_changes_no_byte_of_the_store(tmp_path):
+    out = tmp_path / "s.zarr"
+    assert gpc("collect", "--out", str(out), "--episodes", "1", *FAST).returncode == 0
+    root = zarr.open_group(str(out), mode="r+")
+    wide = np.repeat(root["data/n_contacts"][:], 2, axis=1)
+    del root["data/n_contacts"]
+    root["data"].create_array("n_contacts", data=wide)
+    before = digest(out)
+    one_line(gpc("collect", "--out", str(out), "--episodes", "2", *FAST), 2, str(out), "data/n_contacts rows are (2,)")
+    assert digest(out) == before
+
+
 def test_refusing_a_store_of_another_kind_opens_it_read_only(tmp_path):
     """A Diffusion-Policy-layout store with 10 rows past its last episode end is refused, and not 'repaired'."""
     path = tmp_path / "human.zarr"
@@ -168,6 +217,19 @@ def test_a_second_collection_into_the_same_store_fails_at_once_naming_the_first(
     assert finish(first)[0] == 0
     assert gpc("collect", "--out", str(clean), *job).returncode == 0
     same_store(out, clean)
+
+
+def test_a_run_directory_a_killed_run_left_is_never_mixed_with_another(trained, tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "run.json").write_text('{"seed": 1}')
+    (run / "checkpoints" / "best.ckpt").write_bytes(b"run 1")
+    before = digest(run)
+    args = ["train", "policy", "--dataset", str(trained["store"]), "--out", str(run), "--profile", "tiny", "--max-steps", "2",
+            "--accelerator", "cpu", "--no-progress"]
+    one_line(inline(*args), 2, str(run), "already holds a training run")
+    one_line(inline(*args, "--resume"), 2, str(run), "stopped before its first checkpoint")
+    assert digest(run) == before
 
 
 def test_a_second_training_into_the_same_run_directory_fails_naming_the_first(trained, tmp_path):
@@ -200,6 +262,20 @@ def test_a_stopped_collection_says_what_it_kept_and_resumes_to_the_same_store(tm
     same_store(out, uninterrupted)
 
 
+def test_a_signal_to_the_whole_process_group_stops_parallel_collection_promptly(tmp_path):
+    """`kill -- -PGID` (timeout, Slurm) ends the workers too; the parent must not wait forever for their episodes."""
+    out = tmp_path / "s.zarr"
+    proc = spawn("collect", "--out", str(out), "--episodes", "200", "--explore", "--no-images", "--max-steps", "300",
+                 "--workers", "2", group=True)
+    wait_for(lambda: EpisodeStore.open(out).n_episodes >= 2)
+    os.killpg(proc.pid, signal.SIGTERM)
+    t0 = time.time()
+    rc, err = finish(proc)
+    kept = EpisodeStore.open(out).n_episodes
+    one_line((rc, err), 143, "stopped by SIGTERM", f"{kept} whole episodes are in {out}", alone=False)
+    assert time.time() - t0 < 30
+
+
 def _eval(trained: dict[str, Path], out: Path, *extra: str) -> list[str]:
     return ["eval", str(trained["policy"]), "--planner", "rank", "-K", "3", "--world-model", str(trained["wm"]),
             "--seeds", "100000:100012", "--batch", "2", "--max-steps", "60", "--out", str(out), *extra]
@@ -221,14 +297,16 @@ def test_a_stopped_or_killed_eval_resumes_to_the_results_of_an_uninterrupted_one
     assert rows(out) == rows(clean) and not (out / ".groups").exists()
 
 
-def test_a_stopped_training_keeps_its_last_step_and_resumes(trained, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])  # SIGTERM: what Slurm's preemption sends
+def test_a_stopped_training_keeps_its_last_step_and_resumes(trained, tmp_path, sig):
     run = tmp_path / "run"
     args = ["train", "policy", "--dataset", str(trained["store"]), "--out", str(run), "--profile", "tiny", "--max-steps", "300",
             "--batch-size", "8", "--accelerator", "cpu", "--no-progress", "--checkpoint-every", "10000"]
     proc = spawn(*args)
     wait_for(lambda: (run / "tensorboard").is_dir() and any((run / "tensorboard").iterdir()), timeout=180)
     time.sleep(1.0)
-    line = one_line(finish(proc, signal.SIGINT), 130, "stopped by SIGINT", "training stopped at step", "--resume", alone=False)
+    name = signal.Signals(sig).name
+    line = one_line(finish(proc, sig), 128 + sig, f"stopped by {name}", "training stopped at step", "--resume", alone=False)
     step = int(line.split("training stopped at step ")[1].split(";")[0])
     assert 0 < step < 300 and PolicyModule.load_from_checkpoint(run / "checkpoints" / "last.ckpt") is not None
     import torch
@@ -330,7 +408,7 @@ def small_disk(tmp_path):
 def test_a_full_disk_stops_collection_in_one_line_keeping_whole_episodes(small_disk):
     out = small_disk / "s.zarr"
     done = gpc("collect", "--out", str(out), "--episodes", "40", "--max-steps", "300")  # frames fill 1 MiB
-    one_line(done, 2, "No space left on device")
+    one_line(done, 2, str(out), "No space left on device", "whole episodes are kept")
     kept = EpisodeStore.open(out)
     assert 0 <= kept.n_episodes < 40 and all(kept.read(k).shape[0] == kept.n_steps for k in kept.keys)
 
@@ -363,6 +441,66 @@ def test_compare_refuses_runs_of_other_settings_and_names_damaged_files(trained,
     one_line(gpc("compare", str(tmp_path / "bc30"), "--baseline", str(tmp_path / "bc"), "--out", out), 2,
              str(tmp_path / "bc30" / "summary.json"), "not valid JSON")
     assert not Path(out).exists()
+
+
+def test_results_of_another_kind_are_never_replaced(trained, tmp_path):
+    res = tmp_path / "res"
+    assert gpc("eval", str(trained["policy"]), "--seeds", "100000:100002", "--max-steps", "5", "--out", str(res)).returncode == 0
+    before = digest(res)
+    one_line(inline("compare", str(res), "--baseline", str(res), "--out", str(res / "summary.md")), 2,
+             "not a comparison gpc wrote")
+    one_line(inline("eval", str(trained["policy"]), "--seeds", "100000:100002", "--max-steps", "5", "--sampling-seeds", "0,1",
+                    "--out", str(res)), 2, str(res), "already holds results")
+    one_line(inline("eval", str(trained["policy"]), "--sampling-seeds", "0,0", "--out", str(tmp_path / "twice")), 2,
+             "--sampling-seeds: 0 given twice")
+    assert digest(res) == before and not (res / "sampling-seed-0").exists()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    one_line(inline("data", "video", str(trained["store"]), "--out", str(notes)), 2, str(notes), ".mp4 file")
+    one_line(inline("check-sim", "--data", str(trained["store"]), "--out", str(tmp_path)), 2, str(tmp_path), "is a folder")
+    assert notes.read_text() == "mine"
+
+
+@pytest.mark.parametrize("case", ["summary list", "episodes not objects", "score a string", "no ceiling seed",
+                                  "zarray empty", "precision 64", "lr nan", "lr inf", "steps", "aggregate"])
+def test_damaged_results_and_bad_values_are_one_line(trained, tmp_path, case):
+    policy, wm = str(trained["policy"]), str(trained["wm"])
+    plan = ["eval", policy, "--planner", "rank", "--world-model", wm, "--seeds", "100000", "--out", str(tmp_path / "r")]
+    train_args = ["train", "policy", "--dataset", str(trained["store"]), "--out", str(tmp_path / "run"), "--profile", "tiny",
+                  "--max-steps", "2", "--accelerator", "cpu", "--no-progress"]
+    if case in ("summary list", "episodes not objects", "score a string", "no ceiling seed"):
+        res = tmp_path / "r"
+        assert inline("eval", policy, "--seeds", "100000:100002", "--max-steps", "5", "--out", str(res))[0] == 0
+        cmd = ["compare", str(res), "--baseline", str(res), "--out", str(tmp_path / "c.md")]
+        if case == "summary list":
+            (res / "summary.json").write_text("[]")
+            one_line(inline("eval", policy, "--seeds", "100000:100002", "--out", str(res)), 2, str(res / "summary.json"),
+                     "not a gpc results record")
+            return
+        if case == "no ceiling seed":
+            top = tmp_path / "top"
+            assert inline("eval", policy, "--seeds", "100000", "--max-steps", "5", "--out", str(top))[0] == 0
+            one_line(inline(*cmd, "--ceiling", str(top)), 2, "--ceiling lacks seed(s) [100001]")
+            return
+        rows = json.loads((res / "episodes.json").read_text())
+        (res / "episodes.json").write_text(json.dumps([1] if case == "episodes not objects" else
+                                                      [{**r, "score": "high"} for r in rows]))
+        one_line(inline(*cmd), 2, str(res / "episodes.json"))
+    elif case == "zarray empty":
+        copy = tmp_path / "copy.zarr"
+        shutil.copytree(trained["store"], copy)
+        (copy / "meta" / "episode_ends" / ".zarray").write_text("{}")
+        one_line(inline("data", "info", str(copy)), 2, str(copy / "meta" / "episode_ends" / ".zarray"), "damaged metadata")
+    elif case == "precision 64":
+        one_line(inline(*train_args, "--precision", "64-true"), 2, "--precision 64-true")
+        assert not (tmp_path / "run").exists()
+    elif case.startswith("lr"):
+        one_line(inline(*plan, "--lr", case.split()[1]), 2, f"--lr {case.split()[1]}")
+        assert not (tmp_path / "r").exists()
+    elif case == "steps":
+        one_line(inline("eval", policy, "--steps", "100000", "--out", str(tmp_path / "r")), 2, "--steps 100000")
+    else:
+        one_line(inline(*plan, "--reward-aggregate", "foo"), 2, "--reward-aggregate 'foo'")
 
 
 def test_the_rest_of_the_reported_cases_are_one_line_each(trained, tmp_path):

@@ -26,6 +26,7 @@ from gpc.datasets.locks import exclusive
 from gpc.datasets.store import EpisodeStore
 from gpc.harness import interrupts
 from gpc.harness.files import check_out, write_atomic
+from gpc.harness.stores import check_stores
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import COLLECTORS, Task
 
@@ -110,18 +111,32 @@ def _ours(out: Path) -> None:
     """``--overwrite`` replaces only a store this project wrote: its ``gpc_format`` record proves it."""
     if not out.is_dir():
         raise DataError(f"{out}: is a file, not a store gpc wrote; refusing to replace it (remove it yourself or choose another --out)")
-    try:
-        store = EpisodeStore.open(out)
-    except DataError:
-        raise DataError(f"{out}: is not a store gpc wrote; refusing to replace it (remove it yourself or choose another --out)") from None
-    if "gpc_format" not in store.attrs:
-        raise DataError(f"{out}: was not written by gpc (no gpc_format record); refusing to replace it "
+    if not _wrote(out):
+        raise DataError(f"{out}: is not a store gpc wrote (no gpc_format record); refusing to replace it "
                         "(remove it yourself or choose another --out)")
+
+
+def _wrote(path: Path) -> bool:
+    """Whether ``path`` is a store gpc wrote (read-only)."""
+    try:
+        return path.is_dir() and "gpc_format" in EpisodeStore.open(path).attrs
+    except DataError:
+        return False
+
+
+def _real(out: Path) -> Path:
+    """The store itself when ``--out`` is a symbolic link: it is replaced there, and the link is kept."""
+    return Path(os.path.realpath(out))
 
 
 def check_job(job: CollectJob) -> None:
     """Refuse, reading only, a ``--out`` the job may not write (before its lock exists: nothing is left behind)."""
     out = Path(job.out)
+    new, old, journal = _staging(_real(out))
+    for place in (new, old) if job.overwrite else ():  # gpc's own staging places, touched only as it left them
+        if (place.exists() or place.is_symlink()) and not (_wrote(place) and (place == new or journal.exists())):
+            raise DataError(f"{place}: is in the way of {out} (gpc stages a store being replaced there) and is not "
+                            "one gpc left there; move it away")
     if not out.exists():
         check_out(out.parent)
     elif job.overwrite:
@@ -129,22 +144,32 @@ def check_job(job: CollectJob) -> None:
     elif not out.is_dir():
         raise DataError(f"{out}: is a file, not a store; choose another --out")
     else:
-        _matching(EpisodeStore.open(out), job.provenance(), out)
+        store = EpisodeStore.open(out)
+        _matching(store, job.provenance(), out)
+        if store.n_episodes:  # the rows it holds are the task's (a store edited by hand is refused, not grown)
+            check_stores(get_task(job.task), [out], store.keys)
 
 
-def _staging(out: Path) -> tuple[Path, Path]:
-    """Where a replacement is written before it takes the store's place, and where the old store waits meanwhile."""
-    return out.parent / f".{out.name}.new", out.parent / f".{out.name}.old"
+def _staging(out: Path) -> tuple[Path, Path, Path]:
+    """Where a replacement is written before it takes the store's place, where the old store waits meanwhile,
+    and the journal that exists only while the two trade places."""
+    return (out.parent / f".{out.name}.new", out.parent / f".{out.name}.old",
+            out.parent / f".{out.name}.swapping")
 
 
 def _finish_swap(out: Path) -> None:
-    """Complete a replacement a crash cut between its two renames (the old store is never lost)."""
-    _, old = _staging(out)
-    if old.exists():
+    """Complete a replacement a crash cut while the stores traded places (the old store is never lost).
+
+    Only the journal says a swap was under way: a folder of that name is otherwise left alone."""
+    _, old, journal = _staging(out)
+    if not journal.exists():
+        return
+    if _wrote(old):
         if out.exists():
             shutil.rmtree(old)
         else:
             os.rename(old, out)
+    journal.unlink()
 
 
 def open_for_job(job: CollectJob) -> tuple[EpisodeStore, bool]:
@@ -153,25 +178,27 @@ def open_for_job(job: CollectJob) -> tuple[EpisodeStore, bool]:
     A store of the same command is reopened to resume (checked read-only first: refusing changes
     nothing); ``--overwrite`` stages a new store beside one gpc wrote and leaves anything else alone.
     """
-    wanted, out = job.provenance(), Path(job.out)
+    wanted, out = job.provenance(), _real(Path(job.out))
     attrs = {**wanted, "gpc_version": __version__, "created": datetime.now(timezone.utc).isoformat()}
     check_job(job)
     if out.exists() and not job.overwrite:
         return EpisodeStore.open(out, writable=True), False
     if out.exists():
-        staging, _ = _staging(out)
+        staging = _staging(out)[0]
         if staging.exists():
-            shutil.rmtree(staging)  # an earlier replacement that was stopped: start it again
+            shutil.rmtree(staging)  # an earlier replacement that was stopped (a store gpc wrote: check_job saw to it)
         return EpisodeStore.create(staging, attrs), True
     return EpisodeStore.create(out, attrs), False
 
 
 def _swap(out: Path) -> None:
-    """The staged store takes the old one's place: two renames, then the old store goes."""
-    staging, old = _staging(out)
+    """The staged store takes the old one's place: two renames under a journal, then the old store goes."""
+    staging, old, journal = _staging(out)
+    journal.touch()
     os.rename(out, old)
     os.rename(staging, out)
     shutil.rmtree(old)
+    journal.unlink()
 
 
 def _plain(value: dict[str, Any]) -> dict[str, Any]:
@@ -189,7 +216,7 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
     out = Path(job.out)
     check_job(job)
     with exclusive(out, "store"):
-        _finish_swap(out)
+        _finish_swap(_real(out))
         store, replacing = open_for_job(job)
         present = store.episode_seeds()
         done = set() if present is None else {int(s) for s in present}
@@ -200,7 +227,11 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
         stats: list[dict] = []
         try:
             for data, st in _results(args, job.workers):
-                store.append_episode(data, seed=st["seed"], score=st["score"])
+                try:
+                    store.append_episode(data, seed=st["seed"], score=st["score"])
+                except OSError as exc:  # a full disk: the episode being written is not committed
+                    kept = f"{out} is unchanged" if replacing else f"{store.n_episodes} whole episodes are kept in {out}"
+                    raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
                 stats.append(st)
                 if on_episode:
                     on_episode(st)
@@ -210,7 +241,7 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
                          if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")
             raise
         if replacing:
-            _swap(out)
+            _swap(_real(out))
             store = EpisodeStore.open(out)
     scores = np.array([s["score"] for s in stats]) if stats else np.zeros(0)
     return CollectSummary(
@@ -234,7 +265,7 @@ def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], 
         yield from map(_run_one, args)
         return
     with mp.get_context("spawn").Pool(min(workers, len(args)), initializer=_init_worker, initargs=(user_tasks(),)) as pool:
-        yield from pool.imap(_run_one, args, chunksize=1)
+        yield from interrupts.polled(pool, pool.imap(_run_one, args, chunksize=1))
 
 
 def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "fixed", max_steps: int | None = None,
@@ -245,8 +276,15 @@ def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "
     """
     t = get_task(task)
     t.check_goal(goal)
-    if out is not None:
-        check_out(out)
+    if out is None:
+        return _score_collector(t, kind, seeds, goal, max_steps, on_episode, None)
+    check_out(out)
+    with exclusive(out, "results folder"):
+        return _score_collector(t, kind, seeds, goal, max_steps, on_episode, out)
+
+
+def _score_collector(t: Task, kind: str, seeds: Sequence[int], goal: str, max_steps: int | None,
+                     on_episode: Callable[[dict], None] | None, out: Path | None) -> dict[str, Any]:
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
     for seed in res["seeds"]:
         t0 = time.perf_counter()

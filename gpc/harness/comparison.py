@@ -17,8 +17,10 @@ from typing import Any
 import numpy as np
 
 from gpc.datasets.errors import DataError
-from gpc.harness.files import read_json, write_atomic
+from gpc.harness.files import check_file_out, read_json, write_atomic, write_bytes_atomic
 from gpc.tasks import DEFAULT_TASK, get_task
+
+COMPARISON = "gpc compare"  # the kind its JSON records: what --out may replace
 
 # What makes two runs comparable seed by seed: (summary field, how the message names it).
 SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-steps"), ("sampling_seed", "--sampling-seeds"),
@@ -66,16 +68,39 @@ def load_run(path: Path) -> dict[str, Any]:
     path = Path(path)
     for d in (path, path / "sampling-seed-0"):
         if (d / "episodes.json").is_file() and (d / "summary.json").is_file():
-            summary, episodes = read_json(d / "summary.json"), read_json(d / "episodes.json")
-            for key in ("config", "decision_latency_s", "call_latency_s"):
-                if not isinstance(summary, dict) or key not in summary:
-                    raise DataError(f"{d / 'summary.json'}: not a gpc eval summary (no {key!r})")
-            if not isinstance(episodes, list) or any(not {"seed", "score", "success"} <= set(r) for r in episodes):
-                raise DataError(f"{d / 'episodes.json'}: not gpc eval episodes (each needs seed, score and success)")
-            rows = {r["seed"]: r for r in episodes}
+            summary = _checked_summary(read_json(d / "summary.json"), d / "summary.json")
+            rows = _checked_rows(read_json(d / "episodes.json"), d / "episodes.json")
             label = summary.get("controller", {}).get("controller", d.name)
             return {"path": str(path), "label": label, "summary": summary, "rows": rows}
     raise DataError(f"{path}: no gpc eval results here (episodes.json, summary.json); run `gpc eval ... --out {path}` first")
+
+
+def _checked_summary(summary: Any, path: Path) -> dict[str, Any]:
+    """The fields a comparison reads, of the types it reads them as (a damaged file is named, not a traceback)."""
+    if not isinstance(summary, dict):
+        raise DataError(f"{path}: not a gpc eval summary (not a JSON object)")
+    for key in ("config", "decision_latency_s", "call_latency_s"):
+        if not isinstance(summary.get(key), dict):
+            raise DataError(f"{path}: not a gpc eval summary (no {key!r} object)")
+    for key in ("decision_latency_s", "call_latency_s"):
+        if not _number(summary[key].get("p50")):
+            raise DataError(f"{path}: {key} has no number p50")
+    if not isinstance(summary.get("controller", {}), dict) or not isinstance(summary.get("time_share", {}), dict):
+        raise DataError(f"{path}: controller and time_share must be JSON objects")
+    return summary
+
+
+def _checked_rows(episodes: Any, path: Path) -> dict[int, dict[str, Any]]:
+    if not isinstance(episodes, list) or not all(isinstance(r, dict) for r in episodes):
+        raise DataError(f"{path}: not gpc eval episodes (a JSON list of objects)")
+    for i, r in enumerate(episodes):
+        if not (isinstance(r.get("seed"), int) and _number(r.get("score")) and _number(r.get("success"), bool)):
+            raise DataError(f"{path}: episode {i} needs an integer seed, a number score and a true/false success")
+    return {r["seed"]: r for r in episodes}
+
+
+def _number(x: Any, *also: type) -> bool:
+    return isinstance(x, also) or (isinstance(x, (int, float)) and not isinstance(x, bool))
 
 
 def settings(summary: dict[str, Any]) -> dict[str, Any]:
@@ -125,6 +150,9 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
     table = []
     for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)] + ([top] if top else []):
         check_comparable(run, base)
+    if top is not None and any(s not in top["rows"] for s in seeds):
+        missing = [s for s in seeds if s not in top["rows"]]
+        raise DataError(f"{top['path']}: the --ceiling lacks seed(s) {missing[:5]} of the baseline; compare runs on the same seeds")
     for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)]:
         missing = [s for s in seeds if s not in run["rows"]]
         if missing:
@@ -175,6 +203,24 @@ def _pct(x: float) -> str:
     return "n/a" if x != x else f"{100 * x:.0f}%"
 
 
+def check_compare_out(out: Path) -> None:
+    """``--out`` names a .md file whose .md, .json and .png are new or an earlier comparison's (nothing else is replaced)."""
+    check_file_out(out, ".md")
+    written = [out, out.with_suffix(".json"), out.with_suffix(".png")]
+    for path in written[1:]:
+        if path.is_dir():
+            raise DataError(f"{path}: is a folder; gpc compare --out {out} writes a file there")
+    if any(p.exists() for p in written):
+        record = out.with_suffix(".json")
+        try:
+            held = json.loads(record.read_text()) if record.is_file() else None
+            ours = isinstance(held, dict) and (held.get("kind") == COMPARISON or {"baseline", "rows"} <= set(held))  # (or older)
+        except (OSError, ValueError):
+            ours = False
+        if not ours:
+            raise DataError(f"{out}: it or its .json or .png exists and is not a comparison gpc wrote; choose another --out")
+
+
 def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | None = None) -> str:
     """Markdown (and JSON beside it) of a ``compare_runs`` table; returns the Markdown.
 
@@ -204,7 +250,7 @@ def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | 
     md = "\n".join(lines) + "\n\ns/decision: median seconds per decision per episode (a lockstep call divided by its episodes).\n"
     out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(out, md)
-    write_atomic(out.with_suffix(".json"), json.dumps(table, indent=2))
+    write_atomic(out.with_suffix(".json"), json.dumps({"kind": COMPARISON, **table}, indent=2))
     return md
 
 
@@ -241,5 +287,8 @@ def plot_comparison(table: dict[str, Any], path: Path, size: tuple[int, int] = (
         cv2.circle(img, p, 5, (200, 40, 40) if r["label"] == "bc" else (40, 90, 200), -1, cv2.LINE_AA)
         cv2.putText(img, r["label"], (p[0] + 7, p[1] - 6), font, 0.42, black, 1, cv2.LINE_AA)
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise DataError(f"{path}: OpenCV could not encode the plot")
+    write_bytes_atomic(path, png.tobytes())
     return path

@@ -219,7 +219,7 @@ def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> I
         return
     ctx = mp.get_context("spawn")
     with ctx.Pool(min(config.workers, len(jobs)), initializer=_init_worker, initargs=(factory, config.threads, True, user_tasks())) as pool:
-        yield from pool.imap(_work, jobs, chunksize=1)
+        yield from interrupts.polled(pool, pool.imap(_work, jobs, chunksize=1))
 
 
 def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> dict[str, Any]:
@@ -278,8 +278,9 @@ def write_results(result: dict[str, Any], out: Path, title: str) -> None:
     write_atomic(out / "summary.md", md)
 
 
-def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[str, Any]:
-    """Mean and spread of the score over several sampling seeds (same env seeds): ``summary.md/json``."""
+def write_spread(results: list[dict[str, Any]], out: Path, title: str, run: Any = None) -> dict[str, Any]:
+    """Mean and spread of the score over several sampling seeds (same env seeds): ``summary.md/json``;
+    ``run``: the spread's identity, recorded so a later command knows what the folder holds."""
     scores = np.array([r["mean_score"] for r in results])
     success = np.array([r["success_rate"] for r in results])
     agg = {
@@ -289,6 +290,7 @@ def write_spread(results: list[dict[str, Any]], out: Path, title: str) -> dict[s
         "score_range": [float(scores.min()), float(scores.max())],
         "success_rate": float(success.mean()),
         "decision_latency_s_p50": float(np.median([r["decision_latency_s"]["p50"] for r in results])),
+        **({"run": run} if run is not None else {}),
     }
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "summary.json", json.dumps(agg, indent=2))

@@ -12,12 +12,23 @@ from gpc.datasets.errors import DataError
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write beside ``path``, then rename over it."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """Write beside ``path``, then rename over it; a failure names ``path``, not the temporary file."""
+    write_bytes_atomic(path, text.encode())
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """``write_atomic`` for bytes (an image)."""
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -31,6 +42,16 @@ def read_json(path: Path) -> Any:
         raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     except ValueError as exc:
         raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0][:120]})") from None
+
+
+def check_file_out(path: Path, suffix: str, option: str = "--out") -> None:
+    """``path`` can become a ``suffix`` file (a video, a report) in a folder this process may write, before any work."""
+    path = Path(path)
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder; {option} names the {suffix} file to write")
+    if path.suffix.lower() != suffix:
+        raise DataError(f"{path}: {option} names a {suffix} file (gpc does not write {suffix} content under another name)")
+    check_out(path.parent)
 
 
 def check_out(out: Path) -> None:

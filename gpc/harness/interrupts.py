@@ -4,12 +4,16 @@ Inside ``deferred_signals()`` (the ``gpc`` command runs in one) a first signal o
 the long loops poll it (``check()``: between collected episodes, closed-loop decisions and
 training steps) and raise ``Interrupted`` there, so no signal lands inside a C callback (pymunk's
 collision handlers print and swallow exceptions) or halfway through an optimiser step. A second
-signal stops at once. Worker processes ignore Ctrl-C (``ignore_in_worker``); their parent stops them.
+signal ends the process at once (what is on disk is then as after a kill: every store, checkpoint
+and results folder is written so that a kill loses at most the unfinished piece). Worker processes
+ignore Ctrl-C (``ignore_in_worker``); the parent polls its flag while it waits for them (``polled``).
 Library code run without ``deferred_signals`` sees Python's ordinary ``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -53,9 +57,17 @@ def check() -> None:
 
 
 def _handler(signum: int, frame: FrameType | None) -> None:
-    if _requested:  # the second signal: stop now
-        raise Interrupted(signum)
+    if _requested:  # the second signal: end now, without running Python code that could be anywhere
+        name = signal.Signals(signum).name
+        os.write(2, f"gpc: stopped by {name}: a second signal ended gpc at once; whole episodes, groups and "
+                    "checkpoints already written are kept (run the same command, or --resume, to go on)\n".encode())
+        os._exit(128 + signum)
     _requested.append(signum)
+
+
+def active() -> bool:
+    """Whether the calling process defers signals (is inside ``deferred_signals``)."""
+    return signal.getsignal(signal.SIGINT) is _handler
 
 
 @contextmanager
@@ -79,11 +91,44 @@ def ignore_in_worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[Any]:
+    """The results of ``pool.imap(...)``, checking for a stop while waiting for each (not only between them).
+
+    A SIGTERM to the whole process group ends the workers at once; the parent then stops on its own
+    flag instead of waiting forever for their lost results. A worker that dies alone (the kernel's
+    out-of-memory killer) is reported in one line instead of a hang.
+    """
+    workers = list(getattr(pool, "_pool", ()))  # multiprocessing keeps its workers there
+    while True:
+        try:
+            item = results.next(every)  # type: ignore[attr-defined]  # IMapIterator.next takes a timeout
+        except mp.TimeoutError:
+            check()
+            dead = [w for w in workers if w.exitcode is not None]
+            if dead:
+                code = dead[0].exitcode
+                how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with status {code}"
+                raise OSError(f"a worker process (pid {dead[0].pid}) {how}, e.g. by the out-of-memory killer; "
+                              "what was finished is kept (run the same command again, or with fewer --workers)") from None
+            continue
+        except StopIteration:
+            return
+        yield item
+
+
 class StopOnSignal(Callback):
-    """Ends training after the current step when a stop was asked for; ``last.ckpt`` is then written as at the end."""
+    """Ends training after the current step when a stop was asked for; ``last.ckpt`` is then written as at the end.
+
+    Lightning puts its own SIGTERM handler in place for the fit (it exits 0 without a checkpoint);
+    ours is put back when training starts, so SIGTERM stops like Ctrl-C.
+    """
 
     def __init__(self) -> None:
         self.stopped_at: int | None = None
+
+    def on_train_start(self, trainer: L.Trainer, *args: Any) -> None:
+        if active() and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, _handler)
 
     def on_train_batch_end(self, trainer: L.Trainer, *args: Any) -> None:
         if requested() is not None and self.stopped_at is None:

@@ -15,7 +15,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from gpc.harness.files import write_atomic
+from gpc.datasets.errors import DataError
+from gpc.datasets.locks import exclusive
+from gpc.harness import interrupts
+from gpc.harness.files import check_out, write_atomic, write_bytes_atomic
 from gpc.tasks import get_task
 
 STATE_STRIDE, IMAGE_STRIDE = 1, 8  # default steps between window starts
@@ -42,12 +45,21 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
 
     ``max_windows``, ``noise``, ``sampler_steps`` and ``pose_reader`` apply to visual models only.
     """
+    out = out or default_out(checkpoint)
+    check_out(out)
+    with exclusive(out, "evaluation folder"):
+        return _world_model(checkpoint, datasets, out, split, episodes, horizon, stride, max_windows, noise,
+                            sampler_steps, pose_reader)
+
+
+def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: str, episodes: int | None,
+                 horizon: int | None, stride: int | None, max_windows: int, noise: str, sampler_steps: int | None,
+                 pose_reader: Path | None) -> Written:
     from gpc.models.world_models.config import VisualWorldModelConfig
     from gpc.models.world_models.module import WorldModelModule
 
     module = WorldModelModule.load_from_checkpoint(checkpoint)
     layout = get_task(module.config.task).layout
-    out = out or default_out(checkpoint)
     files: list[Path] = []
     if isinstance(module.config, VisualWorldModelConfig):
         import cv2
@@ -75,8 +87,12 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
                                                 readout=readout, stride=stride or IMAGE_STRIDE,
                                                 max_windows=max_windows, noise=noise)
         table = visual_markdown_table(report, f"Visual world model rollouts: {checkpoint}")
+        interrupts.check()
         out.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(out / "world_model_frames.png"), grid[..., ::-1])
+        ok, png = cv2.imencode(".png", grid[..., ::-1])
+        if not ok:
+            raise DataError(f"{out / 'world_model_frames.png'}: OpenCV could not encode the grid")
+        write_bytes_atomic(out / "world_model_frames.png", png.tobytes())
         files.append(out / "world_model_frames.png")
     else:
         from gpc.models.world_models.eval_state import evaluate_rollouts, markdown_table
@@ -88,6 +104,7 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
                                    stride=stride or STATE_STRIDE)
         table = markdown_table(report, f"World model rollouts: {checkpoint}")
     report["checkpoint"] = str(checkpoint)
+    interrupts.check()
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "world_model_eval.json", json.dumps(report, indent=2))
     write_atomic(out / "world_model_eval.md", table)
@@ -101,17 +118,20 @@ def evaluate_reward(checkpoint: Path, datasets: Sequence[Path], out: Path | None
     from gpc.models.rewards.learned import RewardPredictorModule
     from gpc.models.rewards.learned_eval import evaluate_reward_predictor, markdown_report
 
-    module = RewardPredictorModule.load_from_checkpoint(checkpoint)
-    sets = [(list(datasets), split)] + [([p], "all") for p in ood]
-    reports = []
-    for paths, which in sets:
-        report = evaluate_reward_predictor(module, paths, split=which, episodes=episodes, stride=stride,
-                                           frame_size=image_size)
-        report["checkpoint"] = str(checkpoint)
-        reports.append(report)
     out = out or default_out(checkpoint)
-    out.mkdir(parents=True, exist_ok=True)
-    table = markdown_report(reports, f"Image reward: {checkpoint}")
-    write_atomic(out / "reward_eval.json", json.dumps(reports, indent=2))
-    write_atomic(out / "reward_eval.md", table)
+    check_out(out)
+    with exclusive(out, "evaluation folder"):
+        module = RewardPredictorModule.load_from_checkpoint(checkpoint)
+        sets = [(list(datasets), split)] + [([p], "all") for p in ood]
+        reports = []
+        for paths, which in sets:
+            report = evaluate_reward_predictor(module, paths, split=which, episodes=episodes, stride=stride,
+                                               frame_size=image_size)
+            report["checkpoint"] = str(checkpoint)
+            reports.append(report)
+            interrupts.check()
+        out.mkdir(parents=True, exist_ok=True)
+        table = markdown_report(reports, f"Image reward: {checkpoint}")
+        write_atomic(out / "reward_eval.json", json.dumps(reports, indent=2))
+        write_atomic(out / "reward_eval.md", table)
     return Written(table, (out / "reward_eval.json", out / "reward_eval.md"))

@@ -18,6 +18,7 @@ from gpc.datasets.errors import DataError
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
 from gpc.models.policy.controller import PolicyController
+from gpc.models.rewards.registration import AGGREGATES
 from gpc.tasks import get_task
 from gpc.tasks.base import Task
 
@@ -39,6 +40,8 @@ class RewardSpec:
     def __post_init__(self) -> None:
         if self.kind not in REWARDS:
             raise ValueError(f"--reward {self.kind!r}: use one of {', '.join(REWARDS)}")
+        if self.aggregate not in AGGREGATES:
+            raise ValueError(f"--reward-aggregate {self.aggregate!r}: use one of {', '.join(AGGREGATES)}")
         if self.kind == "learned" and not self.checkpoint:
             raise ValueError("--reward learned needs --reward-checkpoint (train one with `gpc train reward`)")
         if self.kind == "vlm" and self.vlm is None:
@@ -133,6 +136,9 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     loaded = PolicyModule.load_from_checkpoint(str(policy))
     task = get_task(loaded.config.task)
     task.check_goal(goal)
+    levels = loaded.config.noise.train_steps
+    if sampling.steps is not None and sampling.steps > levels:
+        raise ValueError(f"--steps {sampling.steps}: the policy was trained with {levels} noise levels; use at most {levels}")
     unseen = [key for key in loaded.obs_keys if key not in task.record_keys(True, goal)]
     if unseen:
         raise DataError(f"{policy}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "

@@ -57,7 +57,10 @@ def _held(out: Path) -> Any:
     """The identity of the run whose results ``out`` holds (finished or not), or None when it holds none."""
     for record in (out / GROUPS / "run.json", out / "summary.json"):
         if record.is_file():
-            return read_json(record).get("run", "unknown")
+            held = read_json(record)
+            if not isinstance(held, dict):
+                raise DataError(f"{record}: not a gpc results record (not a JSON object); move it away or choose another --out")
+            return held.get("run", "unknown")
     return None
 
 
@@ -80,15 +83,20 @@ def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: 
 def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> list[dict[str, Any]]:
     """Make ``out`` ready for this run (see ``check_results``); returns the groups an earlier, stopped run of it finished."""
     check_results(out, identity, resume, overwrite)
+    _clear_other(out, identity, resume)
+    groups = out / GROUPS
+    groups.mkdir(parents=True, exist_ok=True)
+    write_atomic(groups / "run.json", json.dumps({"run": identity}, indent=1))
+    return [read_json(p) for p in sorted(groups.glob("group-*.json"))]
+
+
+def _clear_other(out: Path, identity: dict[str, Any], resume: bool) -> None:
+    """Remove the results of another run (``check_results`` allowed it: --overwrite)."""
     held = _held(out)
     if held is not None and not (resume and held == identity):
         for name in RESULT_FILES:
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / GROUPS, ignore_errors=True)
-    groups = out / GROUPS
-    groups.mkdir(parents=True, exist_ok=True)
-    write_atomic(groups / "run.json", json.dumps({"run": identity}, indent=1))
-    return [read_json(p) for p in sorted(groups.glob("group-*.json"))]
 
 
 def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool = False, overwrite: bool = False,
@@ -122,18 +130,52 @@ def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool 
     return result
 
 
+def _runs(out: Path, recipe: PlannerRecipe, config: EvalConfig,
+          sampling_seeds: Sequence[int]) -> list[tuple[Path, EvalConfig, dict[str, Any]]]:
+    """(folder, config, identity) of each sampling seed's run (videos for the first only)."""
+    if len(sampling_seeds) == 1:
+        one = dataclasses.replace(config, sampling_seed=sampling_seeds[0])
+        return [(out, one, run_identity(recipe, one))]
+    twice = sorted({s for s in sampling_seeds if list(sampling_seeds).count(s) > 1})
+    if twice:
+        raise ValueError(f"--sampling-seeds: {', '.join(map(str, twice))} given twice")
+    runs = []
+    for i, s in enumerate(sampling_seeds):
+        one = dataclasses.replace(config, sampling_seed=s)
+        if i:
+            one = dataclasses.replace(one, videos=0, video_dir=None)
+        runs.append((out / f"sampling-seed-{s}", one, run_identity(recipe, one)))
+    return runs
+
+
+def check_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_seeds: Sequence[int] = (0,),
+               resume: bool = False, overwrite: bool = False) -> None:
+    """Refuse, reading only and before any episode, what ``run_eval`` with these arguments may not write."""
+    out = Path(out)
+    check_out(out)
+    runs = _runs(out, recipe, config, sampling_seeds)
+    if len(runs) > 1:
+        check_results(out, {"sampling_seeds": list(sampling_seeds), "runs": [r[2] for r in runs]}, resume, overwrite)
+    for folder, _, identity in runs:
+        check_out(folder)
+        check_results(folder, identity, resume, overwrite)
+
+
 def run_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_seeds: Sequence[int] = (0,),
              resume: bool = False, overwrite: bool = False, on_group: Any = None) -> dict[str, Any]:
     """`gpc eval`: ``config`` once per sampling seed (videos for the first only); with several, each run has its
-    own folder ``out/sampling-seed-S`` and ``out/summary.*`` holds the spread of their scores."""
+    own folder ``out/sampling-seed-S`` and ``out/summary.*`` holds the spread of their scores.
+
+    Every folder is checked before the first episode runs (``check_eval``); the spread is a run of
+    its own, whose identity is the sampling seeds and what each run's numbers depend on.
+    """
     out = Path(out)
-    check_out(out)
-    if len(sampling_seeds) == 1:
-        return run_into(out, recipe, dataclasses.replace(config, sampling_seed=sampling_seeds[0]), resume, overwrite, on_group)
-    results = []
-    for i, s in enumerate(sampling_seeds):
-        one = dataclasses.replace(config, sampling_seed=s)
-        if i:  # videos of the first sampling seed only
-            one = dataclasses.replace(one, videos=0, video_dir=None)
-        results.append(run_into(out / f"sampling-seed-{s}", recipe, one, resume, overwrite, on_group))
-    return write_spread(results, out, f"{recipe.label}: {recipe.policy}")
+    check_eval(out, recipe, config, sampling_seeds, resume, overwrite)
+    runs = _runs(out, recipe, config, sampling_seeds)
+    if len(runs) == 1:
+        return run_into(out, recipe, runs[0][1], resume, overwrite, on_group)
+    spread = {"sampling_seeds": list(sampling_seeds), "runs": [identity for _, _, identity in runs]}
+    with exclusive(out, "results folder"):
+        _clear_other(out, spread, resume)
+        results = [run_into(folder, recipe, one, resume, overwrite, on_group) for folder, one, _ in runs]
+        return write_spread(results, out, f"{recipe.label}: {recipe.policy}", spread)

@@ -10,6 +10,7 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.store import EpisodeStore
+from gpc.harness.files import check_file_out
 from gpc.harness.video import write_mp4
 from gpc.tasks import DEFAULT_TASK, get_task
 from gpc.tasks.base import IMAGE_KEY, Task
@@ -59,8 +60,7 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 def episode_video(path: Path, episode: int, out: Path | None) -> Path:
     """One episode as an MP4: its recorded frames, or its states drawn by the task."""
     out = out or path.with_name(f"{path.name.removesuffix('.zarr')}_ep{episode}.mp4")
-    if out.is_dir():
-        raise DataError(f"{out}: is a folder; --out names the .mp4 file to write")
+    check_file_out(out, ".mp4")
     store = EpisodeStore.open(path)
     ep = store.episode(episode, [k for k in ("img", "state") if k in store.keys] or None)
     if "img" in ep:

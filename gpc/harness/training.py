@@ -9,19 +9,28 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+from lightning.pytorch.utilities import rank_zero_only
+
+from gpc.datasets.locks import check_free
+from gpc.harness.files import check_out
 from gpc.harness.interrupts import Interrupted, StopOnSignal, requested
 from gpc.harness.stores import check_stores
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
-from gpc.models.training.trainer import TrainResult, train
+from gpc.models.training.trainer import TrainResult, check_run_dir, train
 from gpc.tasks import get_task
 
 
 def train_component(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
                     init: str | os.PathLike | None = None) -> TrainResult:
     """Train ``cls`` with ``config`` (see ``train``) after checking every store holds the keys and shapes it reads."""
+    if getattr(rank_zero_only, "rank", 0) == 0:  # (a DDP worker Lightning launched finds rank 0's run there)
+        check_out(Path(run.run_dir))  # the output first: a wrong --out costs nothing
+        check_free(run.run_dir, "run directory")
+        check_run_dir(run)
     paths = tuple(str(p) for p in datasets)
     windows = cls.data_config(config, paths, run, (run.seed, run.val_ratio))
     check_stores(get_task(config.task), paths, tuple(dict.fromkeys(windows.obs_keys + (windows.action_key,))))

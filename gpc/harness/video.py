@@ -8,14 +8,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gpc.datasets.errors import DataError
+from gpc.harness import interrupts
+
 
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, scale: int = 1) -> int:
     """Write RGB uint8 frames; returns how many were written. Written to a temporary name first, which a failure
     removes: the path holds a whole video or what it held before."""
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"{path}: is a folder; name the .mp4 file to write")
-    path.parent.mkdir(parents=True, exist_ok=True)
+        raise DataError(f"{path}: is a folder; name the .mp4 file to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
     tmp = path.with_name(f".{path.stem}.partial.mp4")
     writer, n, done = None, 0, False
     try:
@@ -27,13 +33,19 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
                 h, w = frame.shape[:2]
                 writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
                 if not writer.isOpened():
-                    raise OSError(f"{path}: OpenCV cannot write MP4 here")
+                    raise DataError(f"{path}: cannot be written (OpenCV cannot open an MP4 in {path.parent})")
             writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
             n += 1
+            interrupts.check()
         if writer is None:
             raise ValueError(f"{path}: no frames to write")
         writer.release()
-        tmp.replace(path)
+        if not tmp.is_file() or tmp.stat().st_size == 0:
+            raise DataError(f"{path}: cannot be written (the disk may be full)")
+        try:
+            tmp.replace(path)
+        except OSError as exc:
+            raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
         done = True
     finally:
         if writer is not None:

@@ -7,6 +7,7 @@ ground-truth-simulator ceiling is ``rank`` with the simulator as world model.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -55,8 +56,8 @@ class PlannerConfig:
             raise ValueError(f"--M {self.opt_steps}: {self.kind} needs at least one step")
         if self.kind == "rank" and self.opt_steps:
             raise ValueError(f"--M {self.opt_steps}: rank takes no gradient steps (use rank-opt)")
-        if self.lr <= 0:
-            raise ValueError(f"--lr {self.lr}: the step size must be > 0")
+        if not 0 < self.lr < math.inf:  # NaN fails too
+            raise ValueError(f"--lr {self.lr}: the step size must be a finite number > 0")
         if self.temperature <= 0:
             raise ValueError(f"temperature {self.temperature}: MPPI's softmax temperature must be > 0")
         if not 0 < self.init_std <= 1:

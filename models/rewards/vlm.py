@@ -306,20 +306,27 @@ class VLMReward:
         if self.config.cache_dir is not None:
             path = Path(self.config.cache_dir) / f"{key}.json"
             try:
-                self._memory[key] = json.loads(path.read_text())["answer"]
-                return self._memory[key]
+                answer = json.loads(path.read_text())["answer"]
             except (OSError, ValueError, KeyError, TypeError):
                 return None
+            if not isinstance(answer, str):  # a damaged cache entry is asked again, not trusted
+                return None
+            self._memory[key] = answer
+            return answer
         return None
 
     def _cache_put(self, key: str, answer: str) -> None:
         self._memory[key] = answer
         if self.config.cache_dir is not None:
             folder = Path(self.config.cache_dir)
-            folder.mkdir(parents=True, exist_ok=True)
             tmp = folder / f"{key}.json.tmp{os.getpid()}"
-            tmp.write_text(json.dumps({"model": self.config.model, "answer": answer}))
-            os.replace(tmp, folder / f"{key}.json")  # atomic: parallel workers never read half a file
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                tmp.write_text(json.dumps({"model": self.config.model, "answer": answer}))
+                os.replace(tmp, folder / f"{key}.json")  # atomic: parallel workers never read half a file
+            except OSError:  # a full or read-only disk costs the cache, never the eval
+                tmp.unlink(missing_ok=True)
+                self._stats["cache_write_failures"] = self._stats.get("cache_write_failures", 0) + 1
 
 
 def _per_candidate(goal: Any, k: int) -> list[np.ndarray | None]:

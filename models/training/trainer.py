@@ -125,20 +125,31 @@ class StepProgressBar(RichProgressBar):
 
 def check_run_dir(run: RunConfig) -> Path:
     """``RUN_DIR/checkpoints/last.ckpt``, after refusing to resume nothing or to overwrite a run."""
-    last = Path(run.run_dir) / "checkpoints" / LAST
+    run_dir = Path(run.run_dir)
+    last = run_dir / "checkpoints" / LAST
+    if run_dir.exists() and not run_dir.is_dir():
+        raise DataError(f"{run_dir}: is a file; --out names the run's folder")
     if run.resume:
         if not last.is_file():
-            raise DataError(f"{run.run_dir}: nothing to resume (no checkpoints/{LAST}); drop --resume to start a run")
-    elif last.exists():
-        raise DataError(f"{run.run_dir}: already holds a training run; pass --resume to continue it or pick another --out")
+            held = " (it holds a run stopped before its first checkpoint: remove it to start again)" if _holds_run(run_dir) else ""
+            raise DataError(f"{run_dir}: nothing to resume (no checkpoints/{LAST}){held}; drop --resume to start a run")
+    elif _holds_run(run_dir):
+        raise DataError(f"{run_dir}: already holds a training run; pass --resume to continue it or pick another --out")
     return last
+
+
+def _holds_run(run_dir: Path) -> bool:
+    """Whether anything a training run writes is there (a run killed before ``last.ckpt`` counts: never mix two)."""
+    return (run_dir / "run.json").exists() or (run_dir / "tensorboard").exists() or any((run_dir / "checkpoints").glob("*.ckpt"))
 
 
 @rank_zero_only
 def _write_run_record(run_dir: Path, kind: str, config: Any, record: dict[str, Any], run: RunConfig) -> None:
     out = {"kind": kind, "config": config.to_dict(), **record,
            "run": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(run).items()}}
-    (run_dir / "run.json").write_text(json.dumps(out, indent=2))
+    tmp = run_dir / ".run.json.tmp"  # written whole: a reader never sees half of it
+    tmp.write_text(json.dumps(out, indent=2))
+    tmp.replace(run_dir / "run.json")
 
 
 def _stored_config(cls: type[TrainableModule], ckpt: dict[str, Any], path: Path) -> Any:
@@ -174,7 +185,8 @@ def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.P
 def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.PathLike], run: RunConfig,
            init: str | os.PathLike | None, callbacks: Sequence[Callback]) -> TrainResult:
     run_dir = Path(run.run_dir)
-    last = check_run_dir(run)
+    rank_zero = getattr(rank_zero_only, "rank", 0) == 0  # a DDP worker finds rank 0's run.json there already
+    last = check_run_dir(run) if rank_zero else run_dir / "checkpoints" / LAST
     paths = tuple(str(p) for p in datasets)
     start_step, ckpt, init_state = 0, None, None
     if run.resume:
@@ -221,6 +233,7 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
 
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
+PRECISIONS = ("32-true", "32", "16-mixed", "bf16-mixed")
 
 
 def check_lightning(run: RunConfig) -> None:
@@ -229,6 +242,8 @@ def check_lightning(run: RunConfig) -> None:
         raise ValueError(f"--accelerator {run.accelerator!r}: use one of {', '.join(ACCELERATORS)}")
     if run.accelerator in ("gpu", "cuda") and not torch.cuda.is_available():
         raise ValueError(f"--accelerator {run.accelerator}: no GPU is visible to torch on this machine; use cpu or auto")
+    if run.precision not in PRECISIONS:
+        raise ValueError(f"--precision {run.precision}: use one of {', '.join(PRECISIONS)} (the models keep 32-bit weights)")
     devices = run.devices
     if not (devices == "auto" or (isinstance(devices, int) and devices >= 1)
             or (isinstance(devices, str) and devices.isdigit() and int(devices) >= 1)):
