@@ -38,6 +38,11 @@ class MinMaxNormalizer(nn.Module):
         flat = rng < _RANGE_EPS
         scale = np.where(flat, 1.0, 2.0 / np.where(flat, 1.0, rng))
         offset = np.where(flat, -lo, -1.0 - scale * lo)
+        self.add_affine(key, scale, offset)
+
+    def add_affine(self, key: str, scale: np.ndarray, offset: np.ndarray) -> None:
+        """``x * scale + offset`` for ``key`` as given: any per-feature affine map (another framework's
+        mean-std or min-max statistics, converted once)."""
         self.scales[key] = nn.Parameter(torch.as_tensor(scale, dtype=torch.float32), requires_grad=False)
         self.offsets[key] = nn.Parameter(torch.as_tensor(offset, dtype=torch.float32), requires_grad=False)
 

@@ -15,7 +15,7 @@ eval_app = typer.Typer(
     help="Evaluate: `gpc eval CKPT` runs the policy (or --planner) in closed loop; `gpc eval world-model CKPT` scores predictions.",
 )
 
-Checkpoint = Annotated[Path, typer.Argument(help="Policy checkpoint (its config and normalizer are inside).")]
+Checkpoint = Annotated[Path, typer.Argument(help="Policy: a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy .ckpt.")]
 PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alone), rank, opt, rank-opt, gt-sim, cem, mppi or grad.")]
 WorldModel = Annotated[str | None, typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
 K = Annotated[int | None, typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
@@ -28,6 +28,8 @@ VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm
 VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
 Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+PolicyFormat = Annotated[str | None, typer.Option("--policy-format", help="gpc, lerobot or diffusion_policy (default: detected).")]
+PolicyTask = Annotated[str | None, typer.Option("--task", help="Task a LeRobot or Diffusion Policy checkpoint acts in (default: pusht; a gpc checkpoint names its own).")]
 Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
 MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, help="Steps per episode at most (default: the task's episode length).")]
@@ -40,7 +42,7 @@ PLANNING_OPTIONS = (
     ("world_model", WorldModel, None), ("k", K, None), ("m", M, None), ("lr", Lr, 2.0), ("reward", Reward, "registration"),
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
-    ("spacing", Spacing, None),
+    ("spacing", Spacing, None), ("policy_format", PolicyFormat, None), ("task", PolicyTask, None),
 )
 with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
@@ -62,7 +64,7 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
     return make_recipe(checkpoint, planner, world_model=o["world_model"], k=o["k"], m=o["m"], lr=o["lr"],
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,
-                       keep_futures=keep_futures)
+                       keep_futures=keep_futures, task=o["task"], policy_format=o["policy_format"])
 
 
 @eval_app.command("run")

@@ -123,6 +123,24 @@ def check_sim(
         write_atomic(out, json.dumps(report, indent=2))
 
 
+@app.command("inspect")
+def inspect_policy(
+    path: Path = typer.Argument(..., help="A gpc policy checkpoint, a LeRobot policy directory or a Diffusion Policy .ckpt."),
+    policy_format: str | None = typer.Option(None, "--policy-format", help="gpc, lerobot or diffusion_policy (default: detected)."),
+    task: str | None = typer.Option(None, "--task", help="Task a LeRobot or Diffusion Policy checkpoint acts in (default: pusht)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the description as JSON."),
+) -> None:
+    """What a policy file holds, as gpc loads it: format, observations, horizons, sampler, size, normaliser ranges."""
+    from gpc.cli.reports import print_policy
+    from gpc.harness.policies import describe, load_policy
+
+    info = describe(load_policy(path, task, policy_format))
+    if as_json:
+        typer.echo(json.dumps(info, indent=2))
+    else:
+        print_policy(info)
+
+
 @app.command("eval-expert")
 def eval_expert(
     seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),

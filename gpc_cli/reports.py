@@ -76,3 +76,38 @@ def collector_report(task: str, kind: str, seeds: list[int], goal: str, out: Pat
         tid = bar.add_task(f"{kind} episodes", total=len(seeds))
         res = evaluate_collector(task, kind, seeds, goal=goal, on_episode=lambda _: bar.advance(tid), out=out)
     return str(res["markdown"])
+
+
+def print_policy(info: dict) -> None:
+    """``gpc inspect``: one table of the policy's settings, one of its observations and normaliser ranges."""
+    head = Table(title=f"{info['path']} ({info['format']}{', ' + info['generation'] if info.get('generation') else ''})")
+    head.add_column("setting")
+    head.add_column("value")
+    rows = [("task", info["task"]), ("observation type", info["obs_type"]), ("action dim", info["action_dim"]),
+            ("horizon / obs steps / action steps", f"{info['horizon']} / {info['n_obs_steps']} / {info['n_action_steps']}"),
+            ("executed", info["executed"]),
+            ("noise", ", ".join(f"{k} {v}" for k, v in info["noise"].items())),
+            ("sampler", f"{info['sampler']['method']} {info['sampler']['steps']} steps ({info['sampler']['spacing']})"),
+            ("parameters", f"{info['parameters']:,}")]
+    for name in ("policy_class", "weights"):
+        if name in info:
+            rows.append((name.replace("_", " "), info[name]))
+    for name, value in rows:
+        head.add_row(name, str(value))
+    _console.print(head)
+    if info.get("features"):
+        feats = Table(title="features as the checkpoint names them")
+        for col in ("feature", "shape", "normalisation", "from"):
+            feats.add_column(col)
+        for name, f in info["features"].items():
+            feats.add_row(name, str(tuple(f.get("shape", []))), str(f.get("normalization", "")), str(f.get("from", "")))
+        _console.print(feats)
+    obs = Table(title="what it reads and writes (gpc keys), with the normaliser's [-1, 1] in raw units")
+    for col in ("key", "shape", "low", "high"):
+        obs.add_column(col)
+    for key, r in info["normalizer_ranges"].items():
+        shape = info["observations"].get(key, [info["action_dim"]] if key == "action" else [r["size"]])
+        more = " ..." if r["size"] > len(r["low"]) else ""
+        obs.add_row(key, str(tuple(shape)), ", ".join(f"{v:g}" for v in r["low"]) + more,
+                    ", ".join(f"{v:g}" for v in r["high"]) + more)
+    _console.print(obs)

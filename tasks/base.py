@@ -68,6 +68,11 @@ class Task:
     check_replay: Callable[..., dict[str, Any]] | None = None  # recorded store -> how closely the simulator replays it
     row_shapes: Mapping[str, tuple[int, ...]] = field(default_factory=dict)  # one step's shape per stored key, beyond the layout's
     references: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  # published tables: name -> controller label -> score
+    # Policies trained elsewhere: their observation names (LeRobot's, Diffusion Policy's) -> (this task's
+    # observation key, how many leading entries of it the feature is; None: all of it).
+    foreign_features: Mapping[str, tuple[str, int | None]] = field(default_factory=dict)
+    # Observation keys computed from a step's other keys (never recorded), for such policies.
+    derived: Mapping[str, Callable[[Mapping[str, np.ndarray]], np.ndarray]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.goal_modes or self.goal_modes[0] != "fixed":
@@ -82,6 +87,17 @@ class Task:
         known = {STATE_KEY: (self.layout.state.dim,), ACTION_KEY: (self.layout.action.dim,),
                  GOAL_KEY: (len(self.layout.target.goal),), **self.row_shapes}
         return known.get(key)
+
+    def observed_keys(self, images: bool, goal: str) -> list[str]:
+        """Every key a controller can read: the recorded ones and the derived ones."""
+        return self.record_keys(images, goal) + [k for k in self.derived if k not in self.record_keys(images, goal)]
+
+    def with_derived(self, obs: dict[str, np.ndarray], keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """``obs`` plus the derived keys among ``keys`` (those a controller reads)."""
+        for key in keys:
+            if key in self.derived and key not in obs:
+                obs[key] = self.derived[key](obs)
+        return obs
 
     def check_goal(self, goal: str) -> None:
         if goal not in self.goal_modes:

@@ -86,7 +86,9 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
     if hasattr(controller, "start"):
         controller.start(seeds)
     stats_before = controller.stats() if hasattr(controller, "stats") else {}
-    hist = [deque([task.observe(env, images, sim)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
+    keys = tuple(controller.obs_keys)
+    observe = lambda env: task.with_derived(task.observe(env, images, sim), keys)  # noqa: E731
+    hist = [deque([observe(env)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
     rows: list[dict[str, Any]] = [
         {"seed": int(s), "score": 0.0, "success": False, "steps": 0, **{f"{m}_max": 0.0 for m in task.info_metrics}}
         for s in seeds]
@@ -115,7 +117,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                 for m in task.info_metrics:
                     row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
                 row["success"] = row["success"] or bool(terminated)
-                hist[i].append(task.observe(env, images, sim))  # every step: the history is consecutive steps, as in training
+                hist[i].append(observe(env))  # every step: the history is consecutive steps, as in training
                 if terminated or row["steps"] >= (config.max_steps or task.max_episode_steps):
                     done[i] = True
                     break

@@ -85,6 +85,7 @@ class PlannerRecipe:
     reward: RewardSpec = field(default_factory=RewardSpec)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     task: str | None = None
+    policy_format: str | None = None  # gpc | lerobot | diffusion_policy (None: detected)
 
     def __post_init__(self) -> None:
         if self.planner is not None and not self.world_model:
@@ -100,11 +101,11 @@ class PlannerRecipe:
         return name.replace("rank", GT_SIM, 1) if self.world_model == GT_SIM else name
 
     def __call__(self) -> Controller:
+        from gpc.harness.policies import load_policy
         from gpc.models.planning.loading import check_pairing
         from gpc.models.planning.planner import Planner
-        from gpc.models.policy.module import PolicyModule
 
-        policy = PolicyModule.load_from_checkpoint(self.policy, task=self.task)
+        policy = load_policy(self.policy, self.task, self.policy_format)
         if self.planner is None:
             return PolicyController(policy, self.sampling)
         assert self.world_model is not None
@@ -118,6 +119,8 @@ class PlannerRecipe:
     def summary(self) -> dict[str, Any]:
         """What a results file records about the controller."""
         out: dict[str, Any] = {"controller": self.label, "policy": self.policy}
+        if self.policy_format not in (None, "gpc"):
+            out["policy_format"] = self.policy_format
         if self.planner is not None:
             out.update(planner=dataclasses.asdict(self.planner), world_model=self.world_model, reward=self.reward.kind)
         return out
@@ -125,41 +128,46 @@ class PlannerRecipe:
 
 def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
                 m: int | None = None, lr: float = 2.0, reward: RewardSpec = RewardSpec(),
-                sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False) -> PlannerRecipe:
+                sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
+                task: str | None = None, policy_format: str | None = None) -> PlannerRecipe:
     """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
 
+    ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
+    (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
     The checkpoints are opened and the controller built once here, so a mismatched world model,
     reward or goal mode fails now, in one line, before any episode runs.
     """
-    from gpc.models.policy.module import PolicyModule
+    from gpc.harness.policies import load_policy
+    from gpc.models.policy.formats import detect_format
 
-    loaded = PolicyModule.load_from_checkpoint(str(policy))
-    task = get_task(loaded.config.task)
-    task.check_goal(goal)
+    policy_format = policy_format or detect_format(policy)
+    loaded = load_policy(policy, task, policy_format)
+    chosen = get_task(loaded.config.task)
+    chosen.check_goal(goal)
     levels = loaded.config.noise.train_steps
     if sampling.steps is not None and sampling.steps > levels:
         raise ValueError(f"--steps {sampling.steps}: the policy was trained with {levels} noise levels; use at most {levels}")
-    unseen = [key for key in loaded.obs_keys if key not in task.record_keys(True, goal)]
+    unseen = [key for key in loaded.obs_keys if key not in chosen.observed_keys(True, goal)]
     if unseen:
         raise DataError(f"{policy}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "
                         f"observe (a policy trained with --goal random needs --goal random)")
     for key, shape in loaded.config.encoder.obs_shapes:
-        want = task.row_shape(key)
+        want = chosen.row_shape(key)
         if want is not None and tuple(shape) != want:
-            raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {task.name} observes {want}")
+            raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {chosen.name} observes {want}")
     if planner == BC:
         if world_model or k or m:
             raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
-        return PlannerRecipe(str(policy), sampling=sampling, task=task.name)
+        return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format)
     kind = "rank" if planner == GT_SIM else planner
     if planner == GT_SIM:
         if world_model not in (None, GT_SIM):
             raise ValueError(f"--planner {GT_SIM} uses the true simulator; drop --world-model {world_model}")
         world_model = GT_SIM
-    box = task.layout.action
+    box = chosen.layout.action
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
                            opt_steps=m if m is not None else DEFAULT_STEPS.get(kind, 30), lr=lr,
                            action_low=box.low, action_high=box.high, keep_futures=keep_futures)
-    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, task.name)
+    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format)
     recipe()  # build it once here: a mismatched world model or reward fails now, in one line
     return recipe

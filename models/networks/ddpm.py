@@ -1,17 +1,21 @@
-"""DDPM noise schedule and DDPM / DDIM samplers (epsilon prediction), as Diffusion Policy uses them.
+"""DDPM noise schedule and DDPM / DDIM samplers, as Diffusion Policy and LeRobot use them.
 
 We write the ~100 lines ourselves rather than add ``diffusers``: that package would bring a
 hub client and a dozen transitive dependencies for two update rules, and its schedulers
 keep per-call state (``set_timesteps``) that is awkward to share between a trained module
 and concurrent samplers. The formulas follow diffusers' conventions exactly, so a policy
 behaves as Diffusion Policy's (``DDPMScheduler`` / ``DDIMScheduler`` with
-``squaredcos_cap_v2`` betas, ``fixed_small`` variance, ``clip_sample``, ``set_alpha_to_one``,
-"leading" timestep spacing, eta 0); ``tests/test_policy_diffusion.py`` checks them against
-reference values computed by hand. Coefficients are computed in float64.
+``squaredcos_cap_v2``, ``linear`` or ``scaled_linear`` betas, ``fixed_small`` variance,
+``clip_sample``, ``set_alpha_to_one``, "leading" timestep spacing, eta 0, epsilon or sample
+prediction); ``tests/test_policy_diffusion.py`` checks them against reference values computed
+by hand, ``tests/test_foreign_policies.py`` against LeRobot's and Diffusion Policy's own
+sampling. Coefficients are computed in float64.
 
 Notation: ``ab[t]`` is the cumulative product of ``1 - beta`` up to step ``t`` (diffusers'
 ``alphas_cumprod``); ``ab[-1] = 1``. Training noises ``x0`` to
-``x_t = sqrt(ab[t]) x0 + sqrt(1 - ab[t]) eps`` and the network predicts ``eps``.
+``x_t = sqrt(ab[t]) x0 + sqrt(1 - ab[t]) eps`` and the network predicts ``eps`` (``epsilon``,
+gpc's choice) or ``x0`` itself (``sample``); either way a step reads both estimates, the noise
+one computed from the unclipped ``x0`` as diffusers does.
 A chain of ``S`` steps visits ``t = (S-1) r, ..., r, 0`` with ``r = N // S`` ("leading"
 spacing, diffusers' default and Diffusion Policy's) or ``t = N - 1, N - 1 - r, ..., r - 1``
 ("trailing": the first step starts from pure noise, which few-step chains need) and steps
@@ -31,7 +35,8 @@ from dataclasses import dataclass
 
 import torch
 
-BETA_SCHEDULES = ("squaredcos_cap_v2",)
+BETA_SCHEDULES = ("squaredcos_cap_v2", "linear", "scaled_linear")
+PREDICTIONS = ("epsilon", "sample")
 SAMPLERS = ("ddpm", "ddim")
 SPACINGS = ("leading", "trailing")
 
@@ -44,6 +49,9 @@ class NoiseConfig:
     beta_schedule: str = "squaredcos_cap_v2"  # cosine schedule of Nichol & Dhariwal, betas capped at max_beta
     max_beta: float = 0.999  # cap on each beta
     clip_sample: float = 1.0  # clip predicted clean samples to [-clip, clip]; 0 disables clipping
+    prediction: str = "epsilon"  # what the network predicts: the noise (epsilon) or the clean chunk (sample)
+    beta_start: float = 1e-4  # first beta of the linear and scaled_linear schedules
+    beta_end: float = 0.02  # last beta of the linear and scaled_linear schedules
 
     def __post_init__(self) -> None:
         if self.train_steps < 1:
@@ -54,6 +62,10 @@ class NoiseConfig:
             raise ValueError(f"max_beta {self.max_beta}: must lie in (0, 1)")
         if self.clip_sample < 0:
             raise ValueError(f"clip_sample {self.clip_sample}: must be >= 0 (0 disables clipping)")
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"prediction {self.prediction!r}: use one of {', '.join(PREDICTIONS)}")
+        if not 0 < self.beta_start <= self.beta_end < 1:
+            raise ValueError(f"betas ({self.beta_start}, {self.beta_end}): need 0 < beta_start <= beta_end < 1")
 
 
 @dataclass(frozen=True)
@@ -79,13 +91,22 @@ def squaredcos_betas(n: int, max_beta: float = 0.999) -> list[float]:
     return [min(1 - f((i + 1) / n) / f(i / n), max_beta) for i in range(n)]
 
 
+def betas(config: NoiseConfig) -> torch.Tensor:
+    """The schedule's ``N`` betas in float64 (``scaled_linear``: linear in ``sqrt(beta)``, as diffusers)."""
+    n = config.train_steps
+    if config.beta_schedule == "linear":
+        return torch.linspace(config.beta_start, config.beta_end, n, dtype=torch.float64)
+    if config.beta_schedule == "scaled_linear":
+        return torch.linspace(config.beta_start**0.5, config.beta_end**0.5, n, dtype=torch.float64) ** 2
+    return torch.tensor(squaredcos_betas(n, config.max_beta), dtype=torch.float64)
+
+
 class NoiseSchedule:
     """Cumulative signal levels ``ab[t]`` and the forward (noising) process."""
 
     def __init__(self, config: NoiseConfig) -> None:
         self.config = config
-        betas = torch.tensor(squaredcos_betas(config.train_steps, config.max_beta), dtype=torch.float64)
-        self.alpha_bar = torch.cumprod(1.0 - betas, dim=0)  # float64, CPU
+        self.alpha_bar = torch.cumprod(1.0 - betas(config), dim=0)  # float64, CPU
 
     @property
     def train_steps(self) -> int:
@@ -100,14 +121,22 @@ class NoiseSchedule:
         ab = self.alpha_bar.to(torch.float32).to(x0.device)[t].to(x0.dtype).reshape((-1,) + (1,) * (x0.dim() - 1))
         return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
 
-    def predict_x0(self, x: torch.Tensor, eps: torch.Tensor, t: int) -> torch.Tensor:
+    def estimates(self, x: torch.Tensor, out: torch.Tensor, t: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The network's output at ``x_t`` -> (clean chunk, clipped; noise, from the unclipped chunk)."""
         ab = self.ab(t)
-        x0 = (x - math.sqrt(1.0 - ab) * eps) / math.sqrt(ab)
+        if self.config.prediction == "sample":
+            x0, eps = out, (x - math.sqrt(ab) * out) / math.sqrt(1.0 - ab)
+        else:
+            x0, eps = (x - math.sqrt(1.0 - ab) * out) / math.sqrt(ab), out
         clip = self.config.clip_sample
-        return x0.clamp(-clip, clip) if clip > 0 else x0
+        return (x0.clamp(-clip, clip) if clip > 0 else x0), eps
+
+    def target(self, x0: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        """What the network learns to output for ``x_t`` made from ``x0`` and ``noise``."""
+        return x0 if self.config.prediction == "sample" else noise
 
 
-Denoise = Callable[[torch.Tensor, int], torch.Tensor]  # (x_t, t) -> predicted eps, same shape
+Denoise = Callable[[torch.Tensor, int], torch.Tensor]  # (x_t, t) -> the network's output (eps or x0), same shape
 DrawNoise = Callable[[], torch.Tensor]  # -> a standard normal tensor shaped like the sample
 
 
@@ -127,13 +156,14 @@ class DiffusionSampler:
             return [round(n - i * n / k) - 1 for i in range(k)]
         return [i * self.stride for i in range(self.config.steps)][::-1]
 
-    def step(self, x: torch.Tensor, eps: torch.Tensor, t: int, noise: DrawNoise | None,
+    def step(self, x: torch.Tensor, out: torch.Tensor, t: int, noise: DrawNoise | None,
              prev: int | None = None) -> torch.Tensor:
-        """One update from ``x_t`` to ``x_prev`` (default ``t - stride``); ``noise`` is drawn only by DDPM at t > 0."""
+        """One update from ``x_t`` to ``x_prev`` (default ``t - stride``) given the network's output;
+        ``noise`` is drawn only by DDPM at t > 0."""
         s = self.schedule
         prev = t - self.stride if prev is None else prev
         ab_t, ab_p = s.ab(t), s.ab(prev)
-        x0 = s.predict_x0(x, eps, t)
+        x0, eps = s.estimates(x, out, t)
         if self.config.method == "ddim":
             return math.sqrt(ab_p) * x0 + math.sqrt(1.0 - ab_p) * eps
         alpha = ab_t / ab_p

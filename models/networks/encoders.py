@@ -10,6 +10,9 @@ keypoints  keypoint, state            flattened keypoints + agent position
 image      img, state                 ResNet18 spatial-softmax features + agent position
 =========  =========================  ===============================================
 
+The keypoints type reads ``keypoint`` unless ``keypoint_key`` names another vector of object
+points (a policy trained elsewhere may read, say, the object's outline vertices).
+
 With ``goal=True`` (a goal that varies per episode, GPC's random-goal variant) the encoder
 also reads the goal: its pose (``goal``) for state observations, its keypoints
 (``goal_keypoint``) for keypoint ones; images show the goal drawn in the scene already.
@@ -29,7 +32,7 @@ from typing import cast
 import torch
 from torch import nn
 
-from gpc.models.networks.resnet import ResNet18Keypoints
+from gpc.models.networks.resnet import NORMS, ResNet18Keypoints
 
 OBS_KEYS: dict[str, tuple[str, ...]] = {
     "state": ("state",),
@@ -51,10 +54,15 @@ class EncoderConfig:
     spatial_keypoints: int = 32  # spatial-softmax maps (each gives an expected x, y)
     image_feature_dim: int = 64  # features per image after the spatial softmax's linear map
     goal: bool = False  # the goal varies per episode: also read it (GOAL_KEYS)
+    keypoint_key: str = "keypoint"  # data key the keypoints type reads its object points from
+    image_norm: str = "group"  # group (gpc, Diffusion Policy) or batch (LeRobot's current default) in the ResNet
+    image_feature_relu: bool = False  # a ReLU after the image features' linear map (LeRobot's encoder has one)
 
     def __post_init__(self) -> None:
         if self.obs_type not in OBS_KEYS:
             raise ValueError(f"obs type {self.obs_type!r}: use one of {', '.join(OBS_KEYS)}")
+        if self.image_norm not in NORMS:
+            raise ValueError(f"image norm {self.image_norm!r}: use one of {', '.join(NORMS)}")
         for name in ("agent_dims", "crop_size", "resnet_width", "spatial_keypoints", "image_feature_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
@@ -62,7 +70,10 @@ class EncoderConfig:
     @property
     def keys(self) -> tuple[str, ...]:
         """Data keys this observation type reads."""
-        return OBS_KEYS[self.obs_type] + (GOAL_KEYS[self.obs_type] if self.goal else ())
+        keys = OBS_KEYS[self.obs_type]
+        if self.obs_type == "keypoints":
+            keys = (self.keypoint_key,) + keys[1:]
+        return keys + (GOAL_KEYS[self.obs_type] if self.goal else ())
 
     def shape(self, key: str) -> tuple[int, ...]:
         shapes = dict(self.obs_shapes)
@@ -114,7 +125,8 @@ class ImagePart(nn.Module):
         if config.crop_size > min(h, w):
             raise ValueError(f"crop_size {config.crop_size} is larger than the {h}x{w} images of {key!r}")
         self.key, self.crop = key, config.crop_size
-        self.net = ResNet18Keypoints(c, config.resnet_width, config.spatial_keypoints, config.image_feature_dim)
+        self.net = ResNet18Keypoints(c, config.resnet_width, config.spatial_keypoints, config.image_feature_dim,
+                                     config.image_norm, config.image_feature_relu)
         self.out_dim = config.image_feature_dim
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -134,7 +146,8 @@ class ObsEncoder(nn.Module):
         if config.obs_type == "state":
             parts = [VectorPart("state", config.shape("state"))]
         elif config.obs_type == "keypoints":
-            parts = [VectorPart("keypoint", config.shape("keypoint")), VectorPart("state", config.shape("state"), agent)]
+            key = config.keypoint_key
+            parts = [VectorPart(key, config.shape(key)), VectorPart("state", config.shape("state"), agent)]
         else:
             parts = [ImagePart("img", config.shape("img"), config), VectorPart("state", config.shape("state"), agent)]
         if config.goal:

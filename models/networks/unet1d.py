@@ -29,12 +29,15 @@ class UNetConfig:
     n_groups: int = 8  # GroupNorm groups in every block; each width must be a multiple
     step_embed_dim: int = 256  # width of the diffusion-step embedding (DP: 256 state, 128 image)
     cond_predict_scale: bool = True  # FiLM predicts scale and bias (True, DP's setting) or bias only
+    final_groups: int = 0  # GroupNorm groups of the output block; 0: n_groups (Diffusion Policy and LeRobot: always 8)
 
     def __post_init__(self) -> None:
         if not self.down_dims or any(d < 1 for d in self.down_dims):
             raise ValueError(f"down_dims {self.down_dims}: need at least one positive width")
         if any(d % self.n_groups for d in self.down_dims):
             raise ValueError(f"down_dims {self.down_dims}: every width must be a multiple of n_groups {self.n_groups}")
+        if self.final_groups < 0 or (self.final_groups and self.down_dims[0] % self.final_groups):
+            raise ValueError(f"final_groups {self.final_groups}: must be 0 or divide the first width {self.down_dims[0]}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
             raise ValueError(f"kernel_size {self.kernel_size}: must be odd and positive")
         if self.step_embed_dim < 4 or self.step_embed_dim % 2:
@@ -113,7 +116,8 @@ class ConditionalUnet1D(nn.Module):
             upsample = nn.ConvTranspose1d(cin, cin, 4, stride=2, padding=1)
             self.up.append(nn.ModuleList([block(cout * 2, cin), block(cin, cin), upsample]))
         self.final = nn.Sequential(
-            ConvBlock(c.down_dims[0], c.down_dims[0], c.kernel_size, c.n_groups), nn.Conv1d(c.down_dims[0], input_dim, 1)
+            ConvBlock(c.down_dims[0], c.down_dims[0], c.kernel_size, c.final_groups or c.n_groups),
+            nn.Conv1d(c.down_dims[0], input_dim, 1),
         )
 
     def forward(self, sample: torch.Tensor, timestep: torch.Tensor, global_cond: torch.Tensor) -> torch.Tensor:

@@ -40,12 +40,21 @@ def check_pairing(policy: PolicyModule, world_model: Any, source: str) -> None:
 
 
 def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os.PathLike | WorldModel, reward: Reward,
-                 config: PlannerConfig = PlannerConfig(), sampling: SamplingConfig = SamplingConfig()) -> Planner:
+                 config: PlannerConfig = PlannerConfig(), sampling: SamplingConfig = SamplingConfig(),
+                 task: str | None = None, policy_format: str | None = None) -> Planner:
     """Deployment: a policy and a world model (checkpoints or objects) + a reward -> a controller with ``act(obs_history)``.
 
-    No simulator is involved; give ``config.action_low/high`` your robot's action box.
+    ``policy`` may be a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
+    (``policy_format``: detected when None); a foreign one reads its observations from ``task``'s
+    keys (default: the built-in task; ``planner.obs_keys`` lists them). No simulator is involved;
+    give ``config.action_low/high`` your robot's action box.
     """
-    proposer = policy if isinstance(policy, PolicyModule) else PolicyModule.load_from_checkpoint(policy)
+    if isinstance(policy, PolicyModule):
+        proposer = policy
+    else:
+        from gpc.harness.policies import load_policy  # the task registry joins foreign observation names
+
+        proposer = load_policy(policy, task, policy_format)
     model: WorldModel
     if isinstance(world_model, (str, os.PathLike)):
         source, model = str(world_model), load_world_model(world_model)

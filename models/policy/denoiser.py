@@ -32,13 +32,13 @@ class ActionDenoiser(nn.Module):
         return self.encoder(history).flatten(start_dim=1)
 
     def forward(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
-        """``x (B, T, A)`` noisy chunk, ``t (B,)`` steps, ``cond (B, G)`` -> predicted noise ``(B, T, A)``."""
+        """``x (B, T, A)`` noisy chunk, ``t (B,)`` steps, ``cond (B, G)`` -> predicted noise (or chunk) ``(B, T, A)``."""
         return self.unet(x, t, cond)
 
     def loss(
         self, obs: dict[str, torch.Tensor], action: torch.Tensor, generator: torch.Generator | None = None
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Epsilon-prediction MSE at uniformly drawn steps; ``generator`` makes the draw repeatable.
+        """MSE to the noise (or the clean chunk) at uniformly drawn steps; ``generator`` makes the draw repeatable.
 
         ``obs`` values ``(B, T, ...)`` and ``action (B, horizon, A)``, all normalised.
         """
@@ -51,5 +51,5 @@ class ActionDenoiser(nn.Module):
             t = torch.randint(0, self.schedule.train_steps, (b,), generator=generator, device=generator.device)
             t = t.to(action.device)
         noisy = self.schedule.add_noise(action, noise, t)
-        loss = F.mse_loss(self(noisy, t, self.condition(obs)), noise)
+        loss = F.mse_loss(self(noisy, t, self.condition(obs)), self.schedule.target(action, noise))
         return loss, {"loss": loss.detach()}

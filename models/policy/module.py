@@ -56,6 +56,7 @@ class PolicyModule(TrainableModule):
         self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
         self.model = ActionDenoiser(config)
         self.track_ema()
+        self.source: dict[str, Any] = {"format": "gpc"}  # where the weights came from (a foreign format records its files)
 
     # ------------------------------------------------------------------ properties
     @property

@@ -7,6 +7,7 @@ this package.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any
 
@@ -104,6 +105,21 @@ def make_env(goal: str) -> PushTEnv:
     return PushTEnv(obs_type="state", goal=goal)
 
 
+# Observation names of LeRobot (gym-pusht's, through LeRobot's env wrapper) and Diffusion Policy.
+FOREIGN_FEATURES: dict[str, tuple[str, int | None]] = {
+    "observation.state": ("state", 2),  # the agent's position
+    "observation.environment_state": ("vertex", None),  # gym-pusht's 8 outline vertices
+    "observation.image": ("img", None),
+    "agent_pos": ("state", 2),
+    "image": ("img", None),
+    "keypoint": ("keypoint", None),  # Diffusion Policy's low-dim obs: these 9 keypoints, then agent_pos
+}
+
+
+def outline_vertices(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    return geometry.outline_vertices(np.asarray(obs["state"], dtype=np.float64)[2:5]).astype(np.float32)
+
+
 def check_replay(path: Any, episodes: int = 0, frame_stride: int = 10) -> dict[str, Any]:
     from gpc.tasks.pusht.fidelity import check_store
 
@@ -130,8 +146,10 @@ TASK = Task(
     draw_futures=render.draw_futures,
     pose_coverage=pose_coverage,
     check_replay=check_replay,
-    row_shapes={"keypoint": (9, 2), "goal_keypoint": (9, 2), "n_contacts": (1,)},
+    row_shapes={"keypoint": (9, 2), "goal_keypoint": (9, 2), "n_contacts": (1,), "vertex": (8, 2)},
     references=PAPER,
+    foreign_features=FOREIGN_FEATURES,
+    derived={"vertex": outline_vertices},
 )
 
 __all__ = ["ENV_ID", "LAYOUT", "TASK", "PushTEnv", "SimulatorModel", "geometry", "render"]

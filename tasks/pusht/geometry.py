@@ -43,6 +43,13 @@ BLOCK_KEYPOINTS = np.array(
 )
 
 
+# gym-pusht's ``environment_state`` (what LeRobot's Push-T keypoint policies read): the T's 8 outline
+# vertices, bar then stem, in the order pymunk returns each box's vertices (as gym-pusht reads them).
+OUTLINE_VERTICES = np.array(
+    [(-60.0, 0.0), (60.0, 0.0), (60.0, 30.0), (-60.0, 30.0), (-15.0, 30.0), (15.0, 30.0), (15.0, 120.0), (-15.0, 120.0)]
+)
+
+
 def to_world(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Map block-frame points ``(..., N, 2)`` to the world for poses ``(..., 3)``."""
     pose = np.asarray(pose, dtype=np.float64)
@@ -56,6 +63,11 @@ def to_world(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 def block_keypoints(pose: np.ndarray) -> np.ndarray:
     """Diffusion Policy's 9 keypoints ``(..., 9, 2)`` for block poses ``(..., 3)``."""
     return to_world(BLOCK_KEYPOINTS, pose)
+
+
+def outline_vertices(pose: np.ndarray) -> np.ndarray:
+    """gym-pusht's 8 outline vertices ``(..., 8, 2)`` for block poses ``(..., 3)``."""
+    return to_world(OUTLINE_VERTICES, pose)
 
 
 def tee_vertices(pose: np.ndarray) -> np.ndarray:
