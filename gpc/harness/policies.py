@@ -10,16 +10,10 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from gpc.models.policy.formats import GPC, FeatureSource, detect_format
+from gpc.models.policy.formats import GPC, detect_format, feature_sources
 from gpc.models.policy.formats import load_policy as load_any
 from gpc.models.policy.module import PolicyModule
 from gpc.tasks import DEFAULT_TASK, get_task
-from gpc.tasks.base import Task
-
-
-def feature_sources(task: Task) -> dict[str, FeatureSource]:
-    """The task's sources of other frameworks' observation features, with the shapes of its keys."""
-    return {name: FeatureSource(key, task.row_shape(key), take) for name, (key, take) in task.foreign_features.items()}
 
 
 def load_policy(path: str | os.PathLike, task: str | None = None, format: str | None = None, map_location: Any = "cpu") -> PolicyModule:

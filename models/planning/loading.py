@@ -14,6 +14,7 @@ from gpc.datasets.errors import DataError
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Reward, WorldModel
+from gpc.models.policy.formats import ForeignTask, feature_sources, load_policy
 from gpc.models.policy.module import PolicyModule
 from gpc.models.world_models.module import load_world_model
 
@@ -41,20 +42,19 @@ def check_pairing(policy: PolicyModule, world_model: Any, source: str) -> None:
 
 def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os.PathLike | WorldModel, reward: Reward,
                  config: PlannerConfig = PlannerConfig(), sampling: SamplingConfig = SamplingConfig(),
-                 task: str | None = None, policy_format: str | None = None) -> Planner:
+                 task: ForeignTask | None = None, policy_format: str | None = None) -> Planner:
     """Deployment: a policy and a world model (checkpoints or objects) + a reward -> a controller with ``act(obs_history)``.
 
     ``policy`` may be a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
-    (``policy_format``: detected when None); a foreign one reads its observations from ``task``'s
-    keys (default: the built-in task; ``planner.obs_keys`` lists them). No simulator is involved;
-    give ``config.action_low/high`` your robot's action box.
+    (``policy_format``: detected when None); a foreign one needs the ``task`` it acts in
+    (``gpc.tasks.get_task("pusht")``), whose keys it then reads (``planner.obs_keys`` lists them).
+    No simulator is involved; give ``config.action_low/high`` your robot's action box.
     """
     if isinstance(policy, PolicyModule):
         proposer = policy
     else:
-        from gpc.harness.policies import load_policy  # the task registry joins foreign observation names
-
-        proposer = load_policy(policy, task, policy_format)
+        sources = feature_sources(task) if task is not None else None
+        proposer = load_policy(policy, sources, task.name if task is not None else None, policy_format)
     model: WorldModel
     if isinstance(world_model, (str, os.PathLike)):
         source, model = str(world_model), load_world_model(world_model)

@@ -12,7 +12,7 @@ import os
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from gpc.datasets.errors import DataError
 from gpc.models.policy.formats.common import FeatureSource, build
@@ -21,6 +21,24 @@ from gpc.models.policy.module import PolicyModule
 GPC, LEROBOT, DIFFUSION_POLICY = "gpc", "lerobot", "diffusion_policy"
 FORMATS = (GPC, LEROBOT, DIFFUSION_POLICY)
 PRETRAINED = "pretrained_model"  # where lerobot-train puts the policy inside a checkpoint folder
+
+
+class ForeignTask(Protocol):
+    """What a task tells the loader (``gpc.tasks.base.Task`` is one): its name, where it has other
+    frameworks' observation features, and the shape of its keys."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def foreign_features(self) -> Mapping[str, tuple[str, int | None]]: ...
+
+    def row_shape(self, key: str) -> tuple[int, ...] | None: ...
+
+
+def feature_sources(task: ForeignTask) -> dict[str, FeatureSource]:
+    """The task's sources of other frameworks' observation features, with the shapes of its keys."""
+    return {name: FeatureSource(key, task.row_shape(key), take) for name, (key, take) in task.foreign_features.items()}
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -78,4 +96,4 @@ def load_policy(path: str | os.PathLike, sources: Mapping[str, FeatureSource] | 
     return build(diffusion_policy.load(p, sources, task), str(p))
 
 
-__all__ = ["FORMATS", "FeatureSource", "detect_format", "load_policy"]
+__all__ = ["FORMATS", "FeatureSource", "ForeignTask", "detect_format", "feature_sources", "load_policy"]

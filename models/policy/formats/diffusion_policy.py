@@ -4,7 +4,7 @@ A checkpoint holds the run's resolved Hydra config (``cfg``) and ``state_dicts``
 ``ema_model``, ``optimizer``); it is read by the restricted unpickler, so a crafted file runs
 nothing. Two policy classes are read: ``DiffusionUnetLowdimPolicy`` (Push-T's 20-d ``obs``:
 the 9 keypoints, then the agent's position) and ``DiffusionUnetHybridImagePolicy`` (robomimic's
-ResNet18 encoder of ``image``, then ``agent_pos``). The EMA weights are the ones sampled, as
+ResNet18 encoder of ``image``, a ReLU on its features, then ``agent_pos``). The EMA weights are the ones sampled, as
 Diffusion Policy's evaluation does, when the run kept them. Its ``LinearNormalizer`` already is
 an affine map per feature (``x * scale + offset``), which gpc's normaliser takes as it is.
 """
@@ -169,7 +169,8 @@ def load(path: Path, sources: Mapping[str, FeatureSource], task: str) -> Importe
         feature_dim, keypoints = int(net["nets.3.weight"].shape[0]), int(net["pool.nets.weight"].shape[0])
         encoder = EncoderConfig("image", obs_shapes=((img_src.key, (h, w, c)), (agent.key, agent.shape)), agent_dims=agent_width,
                                 crop_size=int(crop[0]) if crop else h, resnet_width=64, spatial_keypoints=keypoints,
-                                image_feature_dim=feature_dim, image_norm="group" if policy.get("obs_encoder_group_norm") else "batch")
+                                image_feature_dim=feature_dim, image_norm="group" if policy.get("obs_encoder_group_norm") else "batch",
+                                image_feature_relu=True)  # robomimic's ObservationEncoder applies a ReLU after each net
         scale, offset = _affine(normal_state, image, path)
         normalizer.add_affine(img_src.key, np.broadcast_to(scale, (c,)) / IMAGE_RANGE, np.broadcast_to(offset, (c,)).copy())
         normalizer.add_affine(agent.key, *padded(agent, *_affine(normal_state, "agent_pos", path)))
