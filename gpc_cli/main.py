@@ -97,6 +97,38 @@ def data_video(
     typer.echo(f"wrote {written}")
 
 
+@data_app.command("import")
+def data_import(
+    src: Path = typer.Argument(..., help="A LeRobot dataset directory (v2.0, v2.1 or v3.0: meta/info.json, parquet, MP4)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Zarr store to create (a new path)."),
+    task: str | None = typer.Option(None, "--task", help="Task whose keys the features map to (default: the one gpc exported it from, else pusht)."),
+) -> None:
+    """Convert a LeRobot dataset into a gpc episode store (exactly, when gpc exported it)."""
+    from gpc.datasets.locks import exclusive
+    from gpc.harness.lerobot_data import import_dataset
+
+    with exclusive(out, "store"):
+        done = import_dataset(src, out, task)
+    how = "restored exactly from its gpc.* features" if done["exact"] else f"features mapped by task {done['task']}"
+    typer.echo(f"wrote {done['out']}: {done['episodes']} episodes, {done['frames']} steps ({how})")
+
+
+@data_app.command("export")
+def data_export(
+    path: Path = typer.Argument(..., help="Zarr episode store."),
+    out: Path = typer.Option(..., "--out", "-o", help="LeRobot dataset directory to create (a new path)."),
+    video: str = typer.Option("lossless", "--video", help="lossless (H.264 RGB, qp 0: frames exact) or h264 (yuv420p, crf 18, small)."),
+    task: str | None = typer.Option(None, "--task", help="Task the store belongs to (default: its record)."),
+) -> None:
+    """Write a store as a LeRobot v3.0 dataset (LeRobot trains on it; `gpc data import` restores it)."""
+    from gpc.datasets.locks import exclusive
+    from gpc.harness.lerobot_data import export_store
+
+    with exclusive(out, "dataset"):
+        done = export_store(path, out, video, task)
+    typer.echo(f"wrote {done['out']}: {done['episodes']} episodes, {done['frames']} frames, {done['video']} video")
+
+
 @app.command("check-sim")
 def check_sim(
     data: Path = typer.Option(..., "--data", help="A recorded store of the task (e.g. Diffusion Policy's Push-T data)."),

@@ -73,6 +73,10 @@ class Task:
     foreign_features: Mapping[str, tuple[str, int | None]] = field(default_factory=dict)
     # Observation keys computed from a step's other keys (never recorded), for such policies.
     derived: Mapping[str, Callable[[Mapping[str, np.ndarray]], np.ndarray]] = field(default_factory=dict)
+    # LeRobot datasets: an episode of a store -> LeRobot features, and back (``gpc data export`` / ``import``).
+    to_lerobot: Callable[[Mapping[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+    from_lerobot: Callable[[Mapping[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+    fps: int = 10  # control steps per second (a LeRobot dataset's fps)
 
     def __post_init__(self) -> None:
         if not self.goal_modes or self.goal_modes[0] != "fixed":

@@ -16,7 +16,7 @@ from gpc.tasks import DEFAULT_TASK, get_task
 from gpc.tasks.base import IMAGE_KEY, Task
 
 
-def _task_of(store: EpisodeStore) -> str:
+def task_of(store: EpisodeStore) -> str:
     """Our stores name their task; a store without that record (Diffusion Policy's) is taken as the default task's."""
     return str(store.attrs.get("task", DEFAULT_TASK if "state" in store.keys else ""))
 
@@ -32,7 +32,7 @@ def describe_store(path: Path) -> dict[str, Any]:
         "episode_length": _stats(lengths) if store.n_episodes else {},
         "attrs": store.attrs,
     }
-    task_name = _task_of(store)
+    task_name = task_of(store)
     if task_name:
         try:  # the task's figures only for a store laid out as the task's
             check_stores(get_task(task_name), [path], [k for k in ("state", "action", "n_contacts") if k in store.keys])
@@ -66,8 +66,8 @@ def episode_video(path: Path, episode: int, out: Path | None) -> Path:
     if "img" in ep:
         frames = np.clip(np.rint(ep["img"]), 0, 255).astype(np.uint8)
         write_mp4(frames, out, scale=4)
-    elif "state" in ep and _task_of(store):
-        task = get_task(_task_of(store))
+    elif "state" in ep and task_of(store):
+        task = get_task(task_of(store))
         write_mp4((task.render_state(s, size=384) for s in ep["state"]), out)
     else:
         raise DataError(f"{path}: episode {episode} has neither img nor state to draw")

@@ -7,7 +7,6 @@ this package.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any
 
@@ -18,6 +17,7 @@ from gpc.datasets.layout import ActionBox, FrameLayout, PoseTarget, StateLayout,
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.pusht import geometry, render
 from gpc.tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
+from gpc.tasks.pusht.foreign import FOREIGN_FEATURES, from_lerobot, outline_vertices, to_lerobot
 from gpc.tasks.pusht.record import RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
 from gpc.tasks.pusht.sim import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
 from gpc.tasks.pusht.sim_model import SIM_KEY, SimulatorModel
@@ -105,21 +105,6 @@ def make_env(goal: str) -> PushTEnv:
     return PushTEnv(obs_type="state", goal=goal)
 
 
-# Observation names of LeRobot (gym-pusht's, through LeRobot's env wrapper) and Diffusion Policy.
-FOREIGN_FEATURES: dict[str, tuple[str, int | None]] = {
-    "observation.state": ("state", 2),  # the agent's position
-    "observation.environment_state": ("vertex", None),  # gym-pusht's 8 outline vertices
-    "observation.image": ("img", None),
-    "agent_pos": ("state", 2),
-    "image": ("img", None),
-    "keypoint": ("keypoint", None),  # Diffusion Policy's low-dim obs: these 9 keypoints, then agent_pos
-}
-
-
-def outline_vertices(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    return geometry.outline_vertices(np.asarray(obs["state"], dtype=np.float64)[2:5]).astype(np.float32)
-
-
 def check_replay(path: Any, episodes: int = 0, frame_stride: int = 10) -> dict[str, Any]:
     from gpc.tasks.pusht.fidelity import check_store
 
@@ -150,6 +135,9 @@ TASK = Task(
     references=PAPER,
     foreign_features=FOREIGN_FEATURES,
     derived={"vertex": outline_vertices},
+    to_lerobot=to_lerobot,
+    from_lerobot=from_lerobot,
+    fps=CONTROL_HZ,
 )
 
 __all__ = ["ENV_ID", "LAYOUT", "TASK", "PushTEnv", "SimulatorModel", "geometry", "render"]

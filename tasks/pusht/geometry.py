@@ -70,6 +70,20 @@ def outline_vertices(pose: np.ndarray) -> np.ndarray:
     return to_world(OUTLINE_VERTICES, pose)
 
 
+def pose_from_outline(vertices: np.ndarray) -> np.ndarray:
+    """Block poses ``(..., 3)`` from outline vertices ``(..., 8, 2)`` (least-squares rigid fit; angle in (-pi, pi])."""
+    q = np.asarray(vertices, dtype=np.float64)
+    p = OUTLINE_VERTICES - OUTLINE_VERTICES.mean(axis=0)
+    centre = q.mean(axis=-2)
+    qc = q - centre[..., None, :]
+    cross = (p[:, 0] * qc[..., 1] - p[:, 1] * qc[..., 0]).sum(axis=-1)
+    dot = (p[:, 0] * qc[..., 0] + p[:, 1] * qc[..., 1]).sum(axis=-1)
+    theta = np.arctan2(cross, dot)
+    c, s = np.cos(theta), np.sin(theta)
+    mx, my = OUTLINE_VERTICES.mean(axis=0)
+    return np.stack([centre[..., 0] - (c * mx - s * my), centre[..., 1] - (s * mx + c * my), theta], axis=-1)
+
+
 def tee_vertices(pose: np.ndarray) -> np.ndarray:
     """World vertices ``(..., 2, 4, 2)`` of the T's two boxes."""
     pose = np.asarray(pose, dtype=np.float64)
