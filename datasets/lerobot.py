@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.jsonfile import read_json
 
 DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 VIDEO_CODECS = ("lossless", "h264")
@@ -39,15 +40,6 @@ def _imports() -> tuple[Any, Any]:
     except ImportError as exc:  # pragma: no cover - both are dependencies; a broken install says which
         raise DataError(f"LeRobot datasets need pyarrow and av ({exc.name} is missing: pip install pyarrow av)") from None
     return pq, av
-
-
-def _json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0][:120]})") from None
 
 
 def is_lerobot_dataset(path: str | os.PathLike) -> bool:
@@ -82,7 +74,7 @@ class LeRobotReader:
         info_path = self.root / "meta" / "info.json"
         if not info_path.is_file():
             raise DataError(f"{self.root}: not a LeRobot dataset (no meta/info.json)")
-        info = _json(info_path)
+        info = read_json(info_path)
         if not isinstance(info, dict) or "features" not in info or "fps" not in info:
             raise DataError(f"{info_path}: has no features or fps (not a LeRobot dataset's info.json)")
         self.info = info

@@ -119,13 +119,14 @@ def data_export(
     out: Path = typer.Option(..., "--out", "-o", help="LeRobot dataset directory to create (a new path)."),
     video: str = typer.Option("lossless", "--video", help="lossless (H.264 RGB, qp 0: frames exact) or h264 (yuv420p, crf 18, small)."),
     task: str | None = typer.Option(None, "--task", help="Task the store belongs to (default: its record)."),
+    images: bool = typer.Option(True, "--images/--no-images", help="Include the camera frames (a keypoint policy does not read them)."),
 ) -> None:
     """Write a store as a LeRobot v3.0 dataset (LeRobot trains on it; `gpc data import` restores it)."""
     from gpc.datasets.locks import exclusive
     from gpc.harness.lerobot_data import export_store
 
     with exclusive(out, "dataset"):
-        done = export_store(path, out, video, task)
+        done = export_store(path, out, video, task, images)
     typer.echo(f"wrote {done['out']}: {done['episodes']} episodes, {done['frames']} frames, {done['video']} video")
 
 

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.jsonfile import read_json
+
+__all__ = ["check_file_out", "check_out", "read_json", "write_atomic", "write_bytes_atomic"]
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -32,16 +33,6 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-
-
-def read_json(path: Path) -> Any:
-    """JSON from ``path``; a missing or damaged file is named in one line."""
-    try:
-        return json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0][:120]})") from None
 
 
 def check_file_out(path: Path, suffix: str, option: str = "--out") -> None:

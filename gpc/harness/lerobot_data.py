@@ -52,8 +52,10 @@ def _finish(staging: Path, out: Path) -> None:
     os.replace(staging, out)
 
 
-def export_store(store_path: Path, out: Path, video: str = "lossless", task: str | None = None) -> dict[str, Any]:
-    """A gpc store as a LeRobot v3.0 dataset in ``out`` (a new directory)."""
+def export_store(store_path: Path, out: Path, video: str = "lossless", task: str | None = None,
+                 images: bool = True) -> dict[str, Any]:
+    """A gpc store as a LeRobot v3.0 dataset in ``out`` (a new directory); ``images=False`` leaves the frames out
+    (a keypoint policy trains faster without LeRobot decoding a video it never reads)."""
     store = EpisodeStore.open(store_path)
     chosen = _lerobot_task(get_task(task or task_of(store) or DEFAULT_TASK))
     if store.n_episodes == 0:
@@ -62,7 +64,7 @@ def export_store(store_path: Path, out: Path, video: str = "lossless", task: str
     assert chosen.to_lerobot is not None
     episodes, keys = [], {}
     for i in range(store.n_episodes):
-        ep = store.episode(i)
+        ep = store.episode(i, [k for k in store.keys if images or k != IMAGE_KEY])
         features = chosen.to_lerobot(ep)
         for key, value in ep.items():
             if key == IMAGE_KEY and "observation.image" in features:
@@ -85,7 +87,7 @@ def export_store(store_path: Path, out: Path, video: str = "lossless", task: str
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return {"episodes": len(episodes), "frames": int(store.n_steps), "out": str(out), "video": video}
+    return {"episodes": len(episodes), "frames": int(store.n_steps), "out": str(out), "video": video if images else "no"}
 
 
 def _restore(features: dict[str, np.ndarray], keys: dict[str, Any]) -> dict[str, np.ndarray]:

@@ -18,7 +18,6 @@ floats in [0, 1]: the 1/255 is folded into the image's map.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.jsonfile import read_json
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.models.networks.ddpm import BETA_SCHEDULES, PREDICTIONS, NoiseConfig, SamplerConfig
 from gpc.models.networks.encoders import EncoderConfig
@@ -55,15 +55,6 @@ BUFFER_PREFIXES = ("normalize_inputs.buffer_", "normalize_targets.buffer_", "unn
 
 def is_lerobot(path: Path) -> bool:
     return (path / CONFIG).is_file()
-
-
-def _json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise DataError(f"{path}: not valid JSON ({str(exc).splitlines()[0][:120]})") from None
 
 
 def _field(cfg: Mapping[str, Any], name: str, path: Path, default: Any = ..., kind: Any = None) -> Any:
@@ -140,7 +131,7 @@ def _processor_stats(directory: Path, modes: dict[str, str]) -> dict[str, dict[s
         if not pipeline.is_file():
             continue
         found = True
-        document = _json(pipeline)
+        document = read_json(pipeline)
         steps = document.get("steps", []) if isinstance(document, dict) else []
         for step in steps:
             if not isinstance(step, dict) or step.get("registry_name") != step_name:
@@ -212,7 +203,7 @@ def _image_affine(scale: np.ndarray, offset: np.ndarray, channels: int) -> tuple
 def load(directory: Path, sources: Mapping[str, FeatureSource], task: str) -> Imported:
     """Read a LeRobot diffusion policy directory for ``task`` (whose observations ``sources`` name)."""
     path = directory / CONFIG
-    cfg = _json(path)
+    cfg = read_json(path)
     if not isinstance(cfg, dict):
         raise DataError(f"{path}: not a JSON object")
     kind = cfg.get("type", SUPPORTED if "down_dims" in cfg else None)
