@@ -211,9 +211,10 @@ def test_a_second_collection_into_the_same_store_fails_at_once_naming_the_first(
     first = spawn("collect", "--out", str(out), *job)
     wait_for(lambda: EpisodeStore.open(out).n_episodes >= 1)
     second = gpc("collect", "--out", str(out), *job)
-    still = EpisodeStore.open(out).n_episodes
+    running, still = first.poll() is None, EpisodeStore.open(out).n_episodes
     one_line(second, 2, f"pid {first.pid}", "writing this store")
-    assert still < 12  # refused while the first was writing, not after it finished
+    assert running or still < 12  # refused while the first was writing, not after it finished (a loaded machine
+    # may start the second process so slowly that the first has written all 12 and is closing)
     assert finish(first)[0] == 0
     assert gpc("collect", "--out", str(clean), *job).returncode == 0
     same_store(out, clean)

@@ -227,3 +227,13 @@ def test_bad_datasets_are_one_line_exit_2(tmp_path, case, expect):
     assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
     assert (out / "mine.txt").read_text() == "keep" if case == "out-exists" else not out.exists()
     assert not (tmp_path / ".s.zarr.partial").exists()
+
+
+def test_export_without_images_leaves_the_frames_out(store, tmp_path):
+    assert cli.invoke(app, ["data", "export", str(store), "--out", str(tmp_path / "lr"), "--no-images"]).exit_code == 0
+    info = json.loads((tmp_path / "lr" / "meta" / "info.json").read_text())
+    assert "observation.image" not in info["features"] and info["video_path"] is None
+    assert not (tmp_path / "lr" / "videos").exists()
+    assert cli.invoke(app, ["data", "import", str(tmp_path / "lr"), "--out", str(tmp_path / "s.zarr")]).exit_code == 0
+    got = EpisodeStore.open(tmp_path / "s.zarr")
+    assert "img" not in got.keys and np.array_equal(got.read("state"), EpisodeStore.open(store).read("state"))
