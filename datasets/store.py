@@ -77,6 +77,9 @@ class EpisodeStore:
         if not path.exists():
             raise DataError(f"{path}: no such file or directory")
         if not path.is_dir() or not ((path / ".zgroup").exists() or (path / "zarr.json").exists()):
+            if (path / "meta" / "info.json").is_file():
+                raise DataError(f"{path}: a LeRobot dataset, not a Zarr episode store: convert it once with "
+                                f"`gpc data import {path} --out STORE.zarr`")
             raise DataError(f"{path}: not a Zarr episode store (no .zgroup or zarr.json)")
         bad = _bad_metadata(path)  # zarr reads array metadata lazily, and its JSON errors name no file
         if bad is not None:

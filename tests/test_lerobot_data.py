@@ -198,6 +198,13 @@ def test_an_imported_store_trains_a_policy(store, tmp_path):
     assert np.allclose(a[:, :4], b[:, :4], atol=1e-3)
 
 
+def test_training_on_a_lerobot_directory_says_how_to_convert_it(tmp_path):
+    _write_v21(tmp_path / "lr", [4, 5])
+    result = cli.invoke(app, ["train", "policy", "--dataset", str(tmp_path / "lr"), "--profile", "tiny", "--out", str(tmp_path / "p")])
+    assert result.exit_code == 2 and "a LeRobot dataset, not a Zarr episode store" in result.output
+    assert "gpc data import" in result.output and not (tmp_path / "p").exists()
+
+
 @pytest.mark.parametrize("case,expect", [
     ("no-info", "not a LeRobot dataset (no meta/info.json)"),
     ("old-version", "codebase_version 'v1.6': gpc reads v2.0, v2.1 and v3.0"),
