@@ -47,7 +47,7 @@ def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os
 
     ``policy`` may be a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one needs the ``task`` it acts in
-    (``gpc.tasks.get_task("pusht")``), whose keys it then reads (``planner.obs_keys`` lists them).
+    (``gpc.tasks.get_task(name)``), whose keys it then reads (``planner.obs_keys`` lists them).
     No simulator is involved; give ``config.action_low/high`` your robot's action box.
     """
     if isinstance(policy, PolicyModule):

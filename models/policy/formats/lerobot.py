@@ -7,7 +7,7 @@ Three generations of files are read, without LeRobot (``docs/foreign_policies.md
   / ``policy_postprocessor*.safetensors``, named by ``policy_*processor.json``;
 - *buffers* (0.1.x after January 2025 to 0.3.x): the same ``config.json``; statistics inside
   ``model.safetensors`` (``normalize_inputs.buffer_observation_state.min`` ...);
-- *flat* (before 2025, e.g. the hub's first ``lerobot/diffusion_pusht``): no ``type``,
+- *flat* (before 2025, the hub's first diffusion policies): no ``type``,
   ``input_shapes`` and per-key ``input_normalization_modes``; statistics in the weights.
 
 Normalisation is LeRobot's: min-max to [-1, 1] (its ``eps`` where a range is empty; the
