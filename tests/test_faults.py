@@ -171,8 +171,9 @@ def test_folders_named_like_gpc_staging_places_are_left_alone(tmp_path):
 def test_a_store_reached_through_a_symbolic_link_has_one_lock_and_keeps_its_link(tmp_path):
     real, alias = tmp_path / "real.zarr", tmp_path / "alias.zarr"
     alias.symlink_to(real.name)
-    first = spawn("collect", "--out", str(real), "--episodes", "12", "--explore", "--no-images", "--max-steps", "300")
+    first = spawn("collect", "--out", str(real), "--episodes", "200", "--explore", "--no-images", "--max-steps", "300")
     wait_for(lambda: EpisodeStore.open(real).n_episodes >= 1)
+    first.send_signal(signal.SIGSTOP)  # paused mid-collection, lock held, however fast the machine
     one_line(gpc("collect", "--out", str(alias), "--episodes", "12", "--explore", "--no-images", "--max-steps", "300"),
              2, f"pid {first.pid}", "writing this store")
     finish(first, signal.SIGKILL)
@@ -207,14 +208,12 @@ def test_refusing_a_store_of_another_kind_opens_it_read_only(tmp_path):
 # ---------------------------------------------------------------------- one writer at a time
 def test_a_second_collection_into_the_same_store_fails_at_once_naming_the_first(tmp_path):
     out, clean = tmp_path / "s.zarr", tmp_path / "clean.zarr"
-    job = ["--episodes", "12", "--explore", "--no-images", "--max-steps", "300"]  # long enough to still be writing
+    job = ["--episodes", "12", "--explore", "--no-images", "--max-steps", "300"]
     first = spawn("collect", "--out", str(out), *job)
     wait_for(lambda: EpisodeStore.open(out).n_episodes >= 1)
-    second = gpc("collect", "--out", str(out), *job)
-    running, still = first.poll() is None, EpisodeStore.open(out).n_episodes
-    one_line(second, 2, f"pid {first.pid}", "writing this store")
-    assert running or still < 12  # refused while the first was writing, not after it finished (a loaded machine
-    # may start the second process so slowly that the first has written all 12 and is closing)
+    first.send_signal(signal.SIGSTOP)  # paused mid-collection: the second always meets a writer still at work
+    one_line(gpc("collect", "--out", str(out), *job), 2, f"pid {first.pid}", "writing this store")
+    first.send_signal(signal.SIGCONT)
     assert finish(first)[0] == 0
     assert gpc("collect", "--out", str(clean), *job).returncode == 0
     same_store(out, clean)
