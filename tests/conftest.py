@@ -43,3 +43,11 @@ def one_thread():
     yield
     torch.set_num_threads(before)
 
+
+
+@pytest.fixture(scope="session")
+def tiny_pusht(tmp_path_factory):
+    """A tiny keypoint policy and state world model on real expert episodes, shared by the fault tests (trained once)."""
+    from faults import train_tiny
+
+    return train_tiny(tmp_path_factory.mktemp("tiny_pusht"))
