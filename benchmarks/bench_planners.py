@@ -20,8 +20,8 @@ from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.planner import Planner
-from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.models.world_models.state import STATE_KEY
 from gpc.tasks import get_task
 from gpc.tasks.pusht import LAYOUT, SimulatorModel, observe

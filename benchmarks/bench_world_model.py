@@ -22,8 +22,8 @@ from benchmarks.common import median_seconds, show, write_rows
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.models.rewards.learned import IMAGE_KEY, ImageReward, PosePredictor, reward_profile
 from gpc.models.rewards.registration import PoseReward, RegistrationReward
-from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.models.world_models.state import ACTION_KEY, DELTA_KEY, STATE_KEY
 from gpc.tasks.pusht import LAYOUT
 

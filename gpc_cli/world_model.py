@@ -35,8 +35,8 @@ def train(
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
     from gpc.harness.training import train_component
-    from gpc.models.world_models.config import world_model_profile
     from gpc.models.world_models.module import WorldModelModule, find_phase_one
+    from gpc.models.world_models.profiles import world_model_profile
 
     chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame, unroll=unroll, feedback=feedback)
     run = run_config(chosen, out, options)

@@ -288,8 +288,8 @@ def test_load_planner_takes_a_foreign_policy_with_its_task(tmp_path):
     from gpc.models.planning.config import PlannerConfig
     from gpc.models.planning.loading import load_planner
     from gpc.models.rewards.registration import RegistrationReward
-    from gpc.models.world_models.config import world_model_profile
     from gpc.models.world_models.module import WorldModelModule
+    from gpc.models.world_models.profiles import world_model_profile
     from gpc.tasks import get_task
 
     task = get_task("pusht")

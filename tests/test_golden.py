@@ -21,8 +21,8 @@ import torch
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.models.policy.config import policy_profile
 from gpc.models.policy.module import PolicyModule
-from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks.pusht import LAYOUT
 
 GOLDEN = Path(__file__).parent / "golden" / "outputs.json"

@@ -25,8 +25,8 @@ from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.registration import RegistrationReward
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
-from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks import get_task
 from gpc.tasks.pusht import LAYOUT, SimulatorModel
 from gpc.tasks.pusht.env import PushTEnv

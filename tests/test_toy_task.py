@@ -19,8 +19,8 @@ from gpc.models.policy.config import policy_profile
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
-from gpc.models.world_models.config import world_model_profile
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks import get_task, register_task, task_names
 
 pytestmark = pytest.mark.usefixtures("one_thread")

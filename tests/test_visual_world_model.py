@@ -21,9 +21,10 @@ from gpc.models.networks.edm import EDMConfig, EulerConfig, karras_sigmas
 from gpc.models.planning.protocols import WorldModel
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
-from gpc.models.world_models.config import VisualWorldModelConfig, world_model_profile
+from gpc.models.world_models.config import VisualWorldModelConfig
 from gpc.models.world_models.eval_visual import ColourReadout, evaluate_visual_rollouts
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks.pusht import LAYOUT
 from gpc.tasks.pusht.render import draw_state
 

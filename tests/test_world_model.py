@@ -24,9 +24,10 @@ from gpc.models.rewards.registration import RegistrationReward
 from gpc.models.training.checkpoint import checkpoint_meta
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import TrainingDiverged, train
-from gpc.models.world_models.config import WorldModelConfig, world_model_profile
+from gpc.models.world_models.config import WorldModelConfig
 from gpc.models.world_models.eval_state import evaluate_rollouts
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks.pusht import LAYOUT
 
 TEE = torch.tensor([[-60, 30], [60, 30], [60, 0], [-60, 0], [-15, 30], [-15, 120], [15, 120], [15, 30]], dtype=torch.float32)
