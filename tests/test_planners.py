@@ -15,6 +15,7 @@ from gpc.harness.collection import CollectJob, collect
 from gpc.harness.comparison import paired_interval, t_quantile
 from gpc.harness.evaluation import episode_generator
 from gpc.harness.recipes import PlannerRecipe, RewardSpec, build_reward
+from gpc.models.planning.ascent import AscentTrace, ascend, step_size
 from gpc.models.planning.config import PLANNERS, PlannerConfig
 from gpc.models.planning.loading import load_planner
 from gpc.models.planning.objective import Objective, PartTimer
@@ -107,9 +108,9 @@ def test_rank_opt_batched_equals_one_by_one(ckpts):
     history = torch.as_tensor(obs["state"][:1])
     init = p.policy.sample_batch({k: v[:1] for k, v in obs.items()}, 4, gens(seeds[:1]))[:, :, p.now :]
     objective = Objective(p.world_model, p.reward, history, None, PartTimer())
-    batch = p.ascend(objective, init, PartTimer())
+    batch = ascend(objective, init, p.config, PartTimer())[0]
     for k in range(4):
-        single = p.ascend(objective, init[:, k : k + 1], PartTimer())
+        single = ascend(objective, init[:, k : k + 1], p.config, PartTimer())[0]
         np.testing.assert_allclose(single[0, 0].numpy(), batch[0, k].numpy(), atol=1e-3)
 
 
@@ -120,8 +121,32 @@ def test_gradient_steps_raise_the_predicted_reward(ckpts):
     init = p.policy.sample_batch(obs, 1, gens(seeds))[:, :, p.now :]
     objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
     before, _ = objective(init)
-    after, _ = objective(p.ascend(objective, init, PartTimer()))
+    after, _ = objective(ascend(objective, init, p.config, PartTimer())[0])
     assert torch.all(after >= before - 1e-4) and torch.any(after > before + 0.1)
+
+
+def test_ascent_guards_keep_the_chunk_near_its_start_and_never_below_it(ckpts):
+    """A trust region bounds every move; keep_best returns the best iterate seen; the trace records each step."""
+    seeds = (100000, 100001, 100002)
+    obs = histories(seeds)
+    p = planner(ckpts, kind="rank-opt", num_proposals=3, opt_steps=6, lr=40.0)  # steps far too large: ascent overshoots
+    init = p.policy.sample_batch(obs, 3, gens(seeds))[:, :, p.now :]
+    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
+    start, _ = objective(init)
+    box = dataclasses.replace(p.config, trust_region=3.0)
+    moved = ascend(objective, init, box, PartTimer())[0]
+    assert float((moved - init).abs().max()) <= 3.0 + 1e-4 and float((moved - init).abs().max()) > 2.9
+    trace = AscentTrace()
+    best = dataclasses.replace(p.config, keep_best=True, lr_decay="cosine")
+    chunks, scores, _ = ascend(objective, init, best, PartTimer(), trace)
+    assert torch.all(scores >= start - 1e-5)
+    np.testing.assert_allclose(scores.numpy(), objective(chunks)[0].detach().numpy(), atol=1e-5)  # the scores are the chunks'
+    seen = torch.stack(trace.scores[:-1]).amax(dim=0)  # every iterate scored before each step, and the last
+    np.testing.assert_allclose(scores.numpy(), torch.maximum(seen, trace.scores[-1]).numpy(), atol=1e-5)
+    assert len(trace.chunks) == len(trace.scores) == 7 and len(trace.action_grads) == len(trace.future_grads) == 6
+    assert trace.action_grads[0].shape == (3, 3, init.shape[2]) and trace.future_grads[0].shape[:2] == (3, 3)
+    assert float(trace.action_grads[0].sum()) > 0 and float(trace.future_grads[0].sum()) > 0
+    assert step_size(best, 0) == 40.0 and step_size(best, 3) == pytest.approx(20.0) and step_size(best, 6) == pytest.approx(0.0)
 
 
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
@@ -197,6 +222,12 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
     res = runner.invoke(app, ["compare", f"{tmp_path / 'bc'}+{tmp_path / 'bc-all'}", "--baseline", str(tmp_path / "bc-all"),
                               "--out", str(tmp_path / "k.md")])
     assert res.exit_code != 0 and "appear in more than one part" in res.output and "Traceback" not in res.output
+    guarded = ["--planner", "rank-opt", "-K", "2", "-M", "3", "--world-model", ckpts["wm"], "--lr-decay", "cosine",
+               "--trust-region", "4", "--keep-best"]
+    res = runner.invoke(app, ["eval", ckpts["policy"], *guarded, *base, "--out", str(tmp_path / "guarded")])
+    assert res.exit_code == 0, res.output
+    planner_settings = json.loads((tmp_path / "guarded" / "summary.json").read_text())["run"]["controller"]["planner"]
+    assert (planner_settings["lr_decay"], planner_settings["trust_region"], planner_settings["keep_best"]) == ("cosine", 4.0, True)
     res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100001",
                               "--max-steps", "16", "--out", str(tmp_path / "plan")])
     assert res.exit_code == 0, res.output
@@ -219,6 +250,10 @@ def test_compare_tells_apart_runs_of_one_controller():
     (["--planner", "rank", "--world-model", "WM", "-K", "0"], "--K 0: must lie in"),
     (["--planner", "zigzag", "--world-model", "WM"], "--planner 'zigzag'"),
     (["--planner", "rank", "--world-model", "POLICY"], "is a 'policy' checkpoint, expected a 'world_model'"),
+    (["--planner", "rank", "--world-model", "WM", "--keep-best"], "--keep-best apply to opt, rank-opt, grad, not --planner rank"),
+    (["--trust-region", "5"], "not --planner bc"),
+    (["--planner", "opt", "--world-model", "WM", "--trust-region", "-1"], "--trust-region -1.0: must be a finite number >= 0"),
+    (["--planner", "opt", "--world-model", "WM", "--lr-decay", "linear"], "--lr-decay 'linear': use one of constant, cosine"),
 ])
 def test_cli_bad_planner_options_fail_in_one_line(ckpts, tmp_path, args, expect):
     args = [{"WM": ckpts["wm"], "POLICY": ckpts["policy"]}.get(a, a) for a in args]

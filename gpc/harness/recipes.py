@@ -10,12 +10,13 @@ load the checkpoints themselves.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from gpc.datasets.errors import DataError
-from gpc.models.planning.config import PlannerConfig, SamplingConfig
+from gpc.models.planning.config import WITH_GRADIENTS, PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
 from gpc.models.policy.controller import PolicyController
 from gpc.models.rewards.registration import AGGREGATES
@@ -25,6 +26,7 @@ from gpc.tasks.base import Task
 GT_SIM = "gt-sim"
 BC = "bc"
 REWARDS = ("registration", "learned", "vlm")
+ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig) if f.name in ("lr_decay", "trust_region", "keep_best")}
 DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
 
 
@@ -127,13 +129,14 @@ class PlannerRecipe:
 
 
 def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
-                m: int | None = None, lr: float = 2.0, reward: RewardSpec = RewardSpec(),
+                m: int | None = None, lr: float = 2.0, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
                 sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
                 task: str | None = None, policy_format: str | None = None) -> PlannerRecipe:
     """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
+    ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``).
     The checkpoints are opened and the controller built once here, so a mismatched world model,
     reward or goal mode fails now, in one line, before any episode runs.
     """
@@ -155,6 +158,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
         want = chosen.row_shape(key)
         if want is not None and tuple(shape) != want:
             raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {chosen.name} observes {want}")
+    if {key: value for key, value in (ascent or {}).items() if ASCENT_DEFAULTS[key] != value} and planner not in WITH_GRADIENTS:
+        raise ValueError(f"--lr-decay, --trust-region and --keep-best apply to {', '.join(WITH_GRADIENTS)}, not --planner {planner}")
     if planner == BC:
         if world_model or k or m:
             raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
@@ -167,7 +172,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     box = chosen.layout.action
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
                            opt_steps=m if m is not None else DEFAULT_STEPS.get(kind, 30), lr=lr,
-                           action_low=box.low, action_high=box.high, keep_futures=keep_futures)
+                           action_low=box.low, action_high=box.high, keep_futures=keep_futures, **(ascent or {}))
+
     recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format)
     recipe()  # build it once here: a mismatched world model or reward fails now, in one line
     return recipe

@@ -21,6 +21,7 @@ WITH_POLICY = ("rank", "opt", "rank-opt")  # planners that read the policy's pro
 WITH_GRADIENTS = ("opt", "rank-opt", "grad")  # planners that differentiate through world model and reward
 PRIOR_FREE = ("cem", "mppi", "grad")  # planners that start from random chunks in the action box
 MAX_PROPOSALS = 100_000
+LR_DECAYS = ("constant", "cosine")
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,9 @@ class PlannerConfig:
     num_proposals: int = 100  # K: policy proposals, random initial chunks, or samples per CEM/MPPI iteration
     opt_steps: int = 0  # M: gradient-ascent steps (opt, rank-opt, grad) or CEM/MPPI iterations
     lr: float = 2.0  # Adam step size on the raw actions (action units, e.g. px)
+    lr_decay: str = "constant"  # constant | cosine: the step size over the M steps (gpc.models.planning.ascent)
+    trust_region: float = 0.0  # gradient planners: how far (action units) an action may move from its start; 0: anywhere
+    keep_best: bool = False  # gradient planners: each candidate ends at its best-scoring iterate, the start included
     elite_fraction: float = 0.1  # CEM: share of samples refitted
     temperature: float = 2.0  # MPPI: softmax temperature, in reward units
     init_std: float = 0.25  # CEM/MPPI: initial std as a fraction of the action range
@@ -58,6 +62,10 @@ class PlannerConfig:
             raise ValueError(f"--M {self.opt_steps}: rank takes no gradient steps (use rank-opt)")
         if not 0 < self.lr < math.inf:  # NaN fails too
             raise ValueError(f"--lr {self.lr}: the step size must be a finite number > 0")
+        if self.lr_decay not in LR_DECAYS:
+            raise ValueError(f"--lr-decay {self.lr_decay!r}: use one of {', '.join(LR_DECAYS)}")
+        if not 0 <= self.trust_region < math.inf:
+            raise ValueError(f"--trust-region {self.trust_region}: must be a finite number >= 0 (0: no limit)")
         if self.temperature <= 0:
             raise ValueError(f"temperature {self.temperature}: MPPI's softmax temperature must be > 0")
         if not 0 < self.init_std <= 1:

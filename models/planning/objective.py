@@ -47,15 +47,15 @@ class Objective:
         b, k = chunks.shape[:2]
         history = self.history[:, None].expand(b, k, *self.history.shape[1:]).flatten(0, 1)
         with self.timer("world_model"):
-            futures = self.world_model.rollout(history, chunks.flatten(0, 1))
+            futures = self.world_model.rollout(history, chunks.flatten(0, 1)).unflatten(0, (b, k))  # the reward reads
+            # these very tensors, so a gradient on them is the score's (the ascent's diagnostics read it)
         with self.timer("reward"):
             if getattr(self.reward, "selects", False):  # a selector ranks one history's candidates at a time
                 goals = [None if self.goal is None else self.goal[i] for i in range(b)]
-                per = futures.unflatten(0, (b, k))
                 ids = self.episodes if self.episodes is not None and len(self.episodes) == b else range(b)
                 select: Any = self.reward  # a selector also takes the episode id (it warns once per episode)
-                scores = torch.stack([select(per[i], goals[i], episode=int(ids[i])) for i in range(b)])
+                scores = torch.stack([select(futures[i], goals[i], episode=int(ids[i])) for i in range(b)])
             else:
                 goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
-                scores = self.reward(futures, goal).unflatten(0, (b, k))
-        return scores, futures.unflatten(0, (b, k))
+                scores = self.reward(futures.flatten(0, 1), goal).unflatten(0, (b, k))
+        return scores, futures

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from gpc.models.planning.ascent import AscentTrace, ascend
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.protocols import ActionProposer, Plan, Reward, WorldModel
@@ -56,6 +57,7 @@ class Planner:
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"n_action_steps {self.n_action_steps} must lie in 1..{self.horizon}")
         self.episodes: Sequence[int] | None = None
+        self.trace: AscentTrace | None = None  # set one to record the next decisions' gradient ascent (diagnostics)
 
     def start(self, episodes: Sequence[int]) -> None:
         """The harness names the lockstep group's episodes (seeds) before its first decision."""
@@ -77,12 +79,12 @@ class Planner:
             with timer("policy"):
                 k = 1 if cfg.kind == "opt" else cfg.num_proposals
                 chunks = self.sampling.sample(self.policy, obs, k, generators)[:, :, self.now :].float()
-            if cfg.kind != "rank":
-                chunks = self.ascend(objective, chunks, timer)
-            scores, futures = objective(chunks)
+            if cfg.kind == "rank":
+                scores, futures = objective(chunks)
+            else:
+                chunks, scores, futures = ascend(objective, chunks, cfg, timer, self.trace)
         elif cfg.kind == "grad":
-            chunks = self.ascend(objective, self.uniform(generators, history.shape[0]), timer)
-            scores, futures = objective(chunks)
+            chunks, scores, futures = ascend(objective, self.uniform(generators, history.shape[0]), cfg, timer, self.trace)
         else:
             chunks, scores, futures = self.sample_search(objective, generators, history.shape[0], timer)
         best = scores.argmax(dim=1)
@@ -102,23 +104,6 @@ class Planner:
             return self.plan(batched, [generator if generator is not None else torch.Generator()]).chunk[0]
 
     # ------------------------------------------------------------------ searches
-    def ascend(self, objective: Objective, init: torch.Tensor, timer: PartTimer) -> torch.Tensor:
-        """M Adam steps of gradient ascent on every chunk at once; actions kept in the action box."""
-        cfg = self.config
-        actions = init.detach().clone().requires_grad_(True)
-        optimizer = torch.optim.Adam([actions], lr=cfg.lr)
-        with torch.enable_grad():
-            for _ in range(cfg.opt_steps):
-                scores, _ = objective(actions)
-                with timer("optimizer"):
-                    optimizer.zero_grad(set_to_none=True)
-                    (-scores.sum()).backward()
-                    optimizer.step()
-                    if cfg.action_low is not None:
-                        with torch.no_grad():
-                            actions.clamp_(cfg.action_low, cfg.action_high)
-        return actions.detach()
-
     def uniform(self, generators: Sequence[torch.Generator], b: int) -> torch.Tensor:
         """``(B, K, T, A)`` chunks drawn uniformly in the action box from each history's own stream."""
         (low, high), shape = self.config.box, (self.config.num_proposals, self.horizon, self.action_dim)

@@ -1,0 +1,109 @@
+"""Gradient ascent on action chunks through world model and reward (GPC-OPT, RANK+OPT, prior-free grad).
+
+Adam on the raw actions, every candidate at once (Adam acts per entry, and each candidate's score
+depends on its own chunk only). Three guards, each off by default (the paper's plain ascent):
+
+- ``lr_decay="cosine"``: the step size decays to 0 over the M steps, so the last steps refine;
+- ``trust_region`` r: every action stays within r (action units) of the chunk ascent started from,
+  where the world model was trained (the policy's proposals look like its data; far-off chunks may
+  fool a learned model and reward);
+- ``keep_best``: each candidate ends at its best-scoring iterate (the start included), so ascent
+  never returns a chunk the objective itself scores below the proposal.
+
+``AscentTrace`` records what each step did (scores, gradients per action and per predicted step,
+how far the chunk moved), for the diagnostics in ``gpc.harness.opt_probe``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from gpc.models.planning.objective import Objective, PartTimer
+
+
+@dataclass
+class AscentTrace:
+    """Per ascent step m = 0..M (m = M: the returned chunks): ``(B, K, ...)`` tensors, detached, on the CPU."""
+
+    chunks: list[torch.Tensor] = field(default_factory=list)  # (B, K, T, A) the iterate scored at step m
+    scores: list[torch.Tensor] = field(default_factory=list)  # (B, K) its predicted score
+    action_grads: list[torch.Tensor] = field(default_factory=list)  # (B, K, T) |d score / d action_t|, steps 0..M-1
+    future_grads: list[torch.Tensor] = field(default_factory=list)  # (B, K, T') |d score / d future_t|, steps 0..M-1
+
+
+def step_size(config: Any, m: int) -> float:
+    """Adam's step size at ascent step ``m`` of ``config.opt_steps``."""
+    if config.lr_decay == "cosine":
+        return config.lr * 0.5 * (1.0 + math.cos(math.pi * m / config.opt_steps))
+    return config.lr
+
+
+def _norms(grad: torch.Tensor | None, like: torch.Tensor, dims: int) -> torch.Tensor:
+    """Euclidean norm over the trailing ``dims`` dimensions (zeros where nothing flowed)."""
+    if grad is None:
+        return torch.zeros(like.shape[: like.dim() - dims])
+    return grad.detach().flatten(like.dim() - dims).norm(dim=-1).cpu()
+
+
+def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTimer,
+           trace: AscentTrace | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """M Adam steps on ``(B, K, T, A)`` chunks -> the chunks, their scores ``(B, K)`` and futures ``(B, K, T', ...)``.
+
+    ``config`` is a ``PlannerConfig`` (``opt_steps``, ``lr``, ``lr_decay``, ``trust_region``,
+    ``keep_best`` and the action box).
+    """
+    start = init.detach()
+    actions = start.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([actions], lr=config.lr)
+    low, high = config.action_low, config.action_high
+    if config.trust_region > 0:  # the box around the start, inside the action box
+        lo, hi = start - config.trust_region, start + config.trust_region
+        if low is not None:
+            lo, hi = lo.clamp(low, high), hi.clamp(low, high)
+    best: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+    with torch.enable_grad():
+        for m in range(config.opt_steps):
+            scores, futures = objective(actions)
+            with timer("optimizer"):
+                if config.keep_best:
+                    best = _better(best, actions.detach(), scores.detach(), futures.detach())
+                if trace is not None:
+                    futures.retain_grad()
+                for group in optimizer.param_groups:
+                    group["lr"] = step_size(config, m)
+                optimizer.zero_grad(set_to_none=True)
+                (-scores.sum()).backward()
+                if trace is not None:
+                    trace.chunks.append(actions.detach().cpu().clone())
+                    trace.scores.append(scores.detach().cpu())
+                    trace.action_grads.append(_norms(actions.grad, actions, 1))
+                    trace.future_grads.append(_norms(futures.grad, futures, futures.dim() - 3))
+                optimizer.step()
+                with torch.no_grad():
+                    if config.trust_region > 0:
+                        actions.copy_(torch.maximum(torch.minimum(actions, hi), lo))
+                    elif low is not None:
+                        actions.clamp_(low, high)
+    with torch.no_grad():
+        scores, futures = objective(actions.detach())
+    chunks = actions.detach()
+    if config.keep_best:
+        chunks, scores, futures = _better(best, chunks, scores, futures)
+    if trace is not None:
+        trace.chunks.append(chunks.cpu().clone())
+        trace.scores.append(scores.cpu())
+    return chunks, scores, futures
+
+
+def _better(best: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None, chunks: torch.Tensor, scores: torch.Tensor,
+            futures: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per candidate, the higher-scoring of the best so far and this iterate (ties keep the earlier)."""
+    if best is None:
+        return chunks.clone(), scores.clone(), futures.clone()
+    up = scores > best[1]
+    return (torch.where(up[..., None, None], chunks, best[0]), torch.where(up, scores, best[1]),
+            torch.where(up.view(*up.shape, *[1] * (futures.dim() - 2)), futures, best[2]))
