@@ -140,6 +140,43 @@ def plan_one(
                f"wrote {out / f'seed{seed}.mp4'} and {out / 'summary.md'}")
 
 
+@eval_app.command("ascent")
+@with_planning_options
+def eval_ascent(
+    checkpoint: Checkpoint,
+    planner: PlannerKind = "opt",
+    planning: dict | None = None,
+    seeds: str = typer.Option("200000:200010", "--seeds", help="Seed range START:STOP or a list (validation seeds: not the test seeds)."),
+    out: Path = typer.Option(Path("results/ascent.md"), "--out", "-o", help="Markdown report to write (and .json beside it)."),
+    batch: int = typer.Option(10, "--batch", min=1, help="Episodes stepped in lockstep per planner call."),
+    threads: Threads = 1,
+    goal: Goal = "fixed",
+    max_steps: int = typer.Option(48, "--max-steps", min=1, help="Steps per episode (every decision is probed)."),
+) -> None:
+    """Why GPC-OPT helps or not: every ascent iterate scored by the planner and replayed in the true simulator."""
+    import json
+
+    from gpc.cli.reports import parse_seeds
+    from gpc.harness.files import check_file_out, write_atomic
+    from gpc.harness.opt_probe import markdown, probe, summarize
+
+    assert planning is not None  # with_planning_options passes them
+    check_file_out(out, ".md")
+    recipe = recipe_from_options(checkpoint, planner, planning, goal)
+    if recipe.planner is None or not recipe.planner.uses_gradients:
+        raise typer.BadParameter(f"{planner} takes no gradient steps; probe opt, rank-opt or grad", param_hint="--planner")
+    controller = recipe()
+    assert recipe.task is not None  # make_recipe names the task
+    episodes, decisions = probe(controller, recipe.task, tuple(parse_seeds(seeds)), max_steps, batch, goal, threads)
+    summary = {"controller": recipe.summary(), "seeds": seeds, "max_steps": max_steps, **summarize(decisions), **episodes}
+    report = markdown(summary, f"Gradient ascent probed: {recipe.label}, seeds {seeds}, {max_steps} steps")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(out.with_suffix(".json"), json.dumps(summary, indent=1))
+    write_atomic(out, report)
+    typer.echo(report)
+    typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+
+
 def compare(
     runs: list[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds); A+B joins one controller's runs on two seed ranges."),
     baseline: Path = typer.Option(..., "--baseline", help="The BC result directory the others are paired with."),

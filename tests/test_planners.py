@@ -172,6 +172,39 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
         np.testing.assert_allclose(reward.per_step(states)[0], reward.per_step(torch.as_tensor(predicted)[None])[0], atol=0.05)
 
 
+def vision_ceiling_delivers_its_predictions(policy: PolicyModule) -> None:
+    """gt-sim over an image policy: the chunk it picks delivers the reward it predicted (frames in, true states scored)."""
+    reward = build_reward(RewardSpec(), PUSHT)
+    p = Planner(PlannerConfig(kind="rank", num_proposals=4), SimulatorModel(), reward, policy)
+    assert "img" in p.obs_keys
+    env = PushTEnv()
+    env.reset(seed=100002)
+    o = observe(env, images=True, sim=True)
+    plan = p.plan({k: np.stack([v] * policy.config.n_obs_steps)[None] for k, v in o.items()}, gens((100002,)))
+    states = []
+    for action in plan.chunk[0]:
+        env.step(action)
+        states.append(env.sim.state())
+    delivered = reward(torch.as_tensor(np.array(states), dtype=torch.float32)[None])
+    assert float(delivered[0]) == pytest.approx(float(plan.scores[0, plan.chosen[0]]), abs=1e-3)
+
+
+def test_the_ascent_probe_scores_every_iterate_in_the_true_simulator(ckpts, tmp_path):
+    args = ["eval", "ascent", ckpts["policy"], "--world-model", ckpts["wm"], "--seeds", "200000:200002", "--max-steps", "16",
+            "--batch", "2"]
+    res = CliRunner().invoke(app, [*args, "--planner", "rank-opt", "-K", "3", "-M", "4", "--out", str(tmp_path / "a.md")])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "a.json").read_text())
+    assert report["decisions"] == 2 * 2 and report["candidates"] == 4 * 3 and report["steps"] == 4  # 2 episodes x 16 steps, 8 per decision
+    step = report["per_step"]
+    assert len(step["predicted_gain_mean"]) == 5 and step["predicted_gain_mean"][0] == 0.0 and step["moved_mean"][0] == 0.0
+    assert 0.0 <= report["final"]["share_fooled"] <= report["final"]["share_predicted_up"] <= 1.0
+    assert report["model_error"]["start_mean"] > 0 and len(report["gradient"]["per_action_first_step"]) == 15
+    assert "| share fooled" in (tmp_path / "a.md").read_text()
+    res = CliRunner().invoke(app, [*args, "--planner", "rank", "--out", str(tmp_path / "b.md")])
+    assert res.exit_code != 0 and "takes no gradient steps" in res.output and not (tmp_path / "b.md").exists()
+
+
 def test_deployment_api_acts_on_one_history(ckpts):
     """The README's example: checkpoints + a reward -> ``act(obs_history)``, no simulator."""
     reward = RegistrationReward(torch.tensor(LAYOUT.target.vertices), torch.tensor([256.0, 256.0, np.pi / 4]), LAYOUT.state.object_pose)
@@ -327,6 +360,15 @@ def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["controller"]["controller"] == "rank K=3" and 0.0 <= summary["mean_score"] <= 1.0
     assert set(summary["time_share"]) == {"policy", "world_model", "reward"}
+    # the vision ceiling: the true simulator ranks the image policy's proposals, and delivers what it predicted
+    vision_ceiling_delivers_its_predictions(PolicyModule.load_from_checkpoint(policy.last))
+    # the ascent probe through the visual model and the learned reward (its model error compares frames)
+    res = CliRunner().invoke(app, ["eval", "ascent", str(policy.last), "--planner", "opt", "-M", "2", "--world-model", str(wm.last),
+                                   "--reward", "learned", "--reward-checkpoint", str(reward.last), "--seeds", "200000",
+                                   "--max-steps", "8", "--out", str(tmp_path / "ascent.md")])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "ascent.json").read_text())
+    assert report["decisions"] == 1 and 0.0 < report["model_error"]["start_mean"] < 1.0  # pixel RMSE in [0, 1] units
     # a visual world model cannot plan for a keypoint policy: one line naming both
     bad = CliRunner().invoke(app, ["eval", ckpts["policy"], "--planner", "rank", "--world-model", str(wm.last),
                                    "--seeds", "100000", "--out", str(tmp_path / "bad")])
