@@ -31,15 +31,24 @@ def train(
     profile: str = typer.Option("cpu", "--profile", help="state: cpu (256x4 MLP, T=16) or tiny; image: cpu (48 px, frameskip 4), paper (96 px, GPU) or tiny."),
     frame: str | None = typer.Option(None, "--frame", help="State models: object (also see the scene from the object's frame; the default when it has an angle) or world (world coordinates only)."),
     feedback: str | None = typer.Option(None, "--feedback", help="Image phase 2: frames fed back as context, denoised (one-step estimate, default) or sampled."),
+    distill: Path | None = typer.Option(None, "--distill", help="Image models: a trained model to distil into a student sampling in --sampler-steps (starts from its weights)."),
+    sampler_steps: int = typer.Option(1, "--sampler-steps", min=1, help="--distill: the student's Euler steps per predicted frame."),
     options: dict | None = None,
 ) -> None:
-    """Train a world model (phase 1, then phase 2 from it); checkpoints land in OUT/checkpoints."""
+    """Train a world model (phase 1, then phase 2 from it; or a fewer-step student of one); checkpoints land in OUT/checkpoints."""
     from gpc.harness.training import train_component
-    from gpc.models.world_models.module import WorldModelModule, find_phase_one
-    from gpc.models.world_models.profiles import world_model_profile
+    from gpc.models.world_models.module import WorldModelModule, find_phase_one, load_world_model
+    from gpc.models.world_models.profiles import distill_profile, world_model_profile
 
-    chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame, unroll=unroll, feedback=feedback)
+    if distill is not None:
+        if init is not None:
+            raise typer.BadParameter("a student starts from its teacher's weights; drop --init", param_hint="--init")
+        chosen = distill_profile(profile, load_world_model(distill, task).config, str(distill), sampler_steps)
+    else:
+        chosen = world_model_profile(profile, phase, get_task(task).layout, obs, frame, unroll=unroll, feedback=feedback)
     run = run_config(chosen, out, options)
+    if distill is not None and not run.resume:
+        init = distill
     if phase == 2 and init is None and not run.resume:
         init = find_phase_one(out)
         typer.echo(f"phase 2 starts from {init}")

@@ -368,3 +368,35 @@ def test_eval_can_read_poses_with_the_learned_reward_predictor(phase2, store, tm
     assert report["readout_config"]["pose"] == "learned" and report["readout_config"]["checkpoint"] == str(reader)
     steps = report["readout"]["per_step"]["model"]["object_units"]
     assert len(steps) == 2 and all(np.isfinite(steps)) and "learned pose predictor" in ev.output
+
+
+def test_a_distilled_one_step_student_agrees_with_its_three_step_teacher(phase1, store, tmp_path):
+    """`--distill`: the student samples in 1 step, nearer the teacher's 3-step frames than the teacher's own 1-step
+    chain gets, gradients flow through it, and it plans without the teacher (whose weights stay out of its file)."""
+    teacher_path = tmp_path / "teacher.ckpt"
+    teacher_path.write_bytes(Path(phase1.last).read_bytes())
+    out = tmp_path / "student"
+    res = CliRunner().invoke(app, ["train", "world-model", "--distill", str(teacher_path), "--sampler-steps", "1", "--profile", "tiny",
+                                   "--dataset", str(store), "--out", str(out), "--max-steps", "60", "--no-progress",
+                                   "--accelerator", "cpu"])
+    assert res.exit_code == 0, res.output
+    teacher = WorldModelModule.load_from_checkpoint(teacher_path)
+    student_file = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
+    assert not any("teacher" in key for key in student_file["state_dict"])
+    teacher_path.unlink()  # a student plans alone
+    student = WorldModelModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
+    assert student.dynamics.config.sampler.steps == 1 and teacher.dynamics.config.sampler.steps == 3
+    history, actions = _windows(store, teacher, starts=((3, 3), (4, 9), (5, 15), (0, 12)))  # episodes 3-5: held out
+    with torch.no_grad():
+        target = teacher.rollout(history, actions)
+        student_frames = student.rollout(history, actions)
+        teacher.dynamics.use_sampler(dataclasses.replace(teacher.dynamics.config.sampler, steps=1))
+        shortcut = teacher.rollout(history, actions)  # the teacher's own chain cut to one step
+    rmse = lambda a, b: float((a - b).pow(2).mean().sqrt())  # noqa: E731
+    assert rmse(student_frames, target) < 0.7 * rmse(shortcut, target), (rmse(student_frames, target), rmse(shortcut, target))
+    moved = actions.clone().requires_grad_(True)
+    (student.rollout(history, moved) * torch.linspace(0, 1, 16)).sum().backward()
+    assert moved.grad is not None and bool(torch.isfinite(moved.grad).all()) and float(moved.grad.abs().sum()) > 0
+    bad = CliRunner().invoke(app, ["train", "world-model", "--distill", str(out / "checkpoints" / "last.ckpt"), "--sampler-steps", "1",
+                                   "--profile", "tiny", "--dataset", str(store), "--out", str(tmp_path / "s2")])
+    assert bad.exit_code != 0 and "the teacher samples in 1; a student takes fewer" in bad.output and "Traceback" not in bad.output

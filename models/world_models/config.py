@@ -279,12 +279,17 @@ class VisualWorldModelConfig(_TrainingConfig):
     context; phase 2 unrolls: each step's context holds the previous steps' ``feedback``
     frames (detached), ``denoised`` being the one-step estimate at the training noise level
     (the official GPC code), ``sampled`` the sampler's frame (what a rollout feeds back).
+    With ``distill_from``, a student started from that teacher learns to give, in its own
+    sampler's steps, the frame the teacher's sampler gives from the same context and
+    (perturbed) actions: planning pays per sampler step, in every rollout and gradient.
     """
 
     obs_type: str = "image"  # observations predicted
     dynamics: VisualDynamicsConfig = field(default_factory=VisualDynamicsConfig)  # the network
     feedback: str = "denoised"  # phase 2: frame fed back as context (denoised or sampled)
     optim: OptimConfig = field(default_factory=lambda: OptimConfig(lr=3e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=200))
+    distill_from: str | None = None  # a teacher checkpoint: learn to give its sampler's frames in this model's fewer steps
+    distill_action_noise: float = 0.05  # distillation: actions moved by up to this share of the action extent (planners' chunks)
 
     def __post_init__(self) -> None:
         if self.obs_type != "image":
@@ -293,6 +298,8 @@ class VisualWorldModelConfig(_TrainingConfig):
             raise ValueError(f"horizon {self.horizon} must be a multiple of frameskip {self.dynamics.frameskip}")
         if self.feedback not in FEEDBACK:
             raise ValueError(f"feedback {self.feedback!r}: use one of {', '.join(FEEDBACK)}")
+        if not 0 <= self.distill_action_noise <= 1:
+            raise ValueError(f"distill_action_noise {self.distill_action_noise}: a share of the action extent in [0, 1]")
         super().__post_init__()
 
     @property
@@ -331,4 +338,5 @@ def with_network_of(config: AnyWorldModelConfig, source: AnyWorldModelConfig) ->
     if isinstance(config, WorldModelConfig) and isinstance(source, WorldModelConfig):
         return dataclasses.replace(config, dynamics=source.dynamics)
     assert isinstance(config, VisualWorldModelConfig) and isinstance(source, VisualWorldModelConfig)  # same obs_type
-    return dataclasses.replace(config, dynamics=source.dynamics)
+    # the sampler is inference, not network: a distillation student keeps its own (fewer) steps
+    return dataclasses.replace(config, dynamics=dataclasses.replace(source.dynamics, sampler=config.dynamics.sampler))

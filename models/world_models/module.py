@@ -58,6 +58,7 @@ class WorldModelModule(TrainableModule):
         self.config: AnyWorldModelConfig = config
         visual = isinstance(config, VisualWorldModelConfig)
         self.dynamics: StateDynamics | VisualDynamics = (VisualDynamics if visual else StateDynamics)(config.dynamics, normalizer)  # type: ignore[arg-type]
+        self._teacher: tuple[VisualDynamics] | None = None  # in a tuple: not a submodule, not in the checkpoint
         self.track_ema()
 
     @property
@@ -82,7 +83,21 @@ class WorldModelModule(TrainableModule):
         return self.dynamics
 
     def loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        if isinstance(self.config, VisualWorldModelConfig) and self.config.distill_from:
+            assert isinstance(self.dynamics, VisualDynamics)  # a visual config builds visual dynamics
+            return self.dynamics.window_loss(batch, self.config, self.teacher())
         return self.dynamics.window_loss(batch, self.config)  # type: ignore[arg-type]
+
+    def teacher(self) -> VisualDynamics:
+        """The distillation teacher's dynamics, frozen, loaded once from ``config.distill_from`` (kept out of the
+        checkpoint: a student plans alone)."""
+        if self._teacher is None:
+            assert isinstance(self.config, VisualWorldModelConfig) and self.config.distill_from
+            loaded = load_world_model(self.config.distill_from, self.config.task).dynamics
+            if not isinstance(loaded, VisualDynamics):
+                raise ValueError(f"{self.config.distill_from}: a state world model cannot teach a visual one")
+            self._teacher = (loaded.to(self.device).eval().requires_grad_(False),)
+        return self._teacher[0]
 
     def check_ready(self) -> None:
         self.dynamics.check_normalizer()

@@ -95,3 +95,23 @@ def _visual_profile(name: str, phase: int, layout: TaskLayout) -> Profile[AnyWor
                                   action_map_sigma=layout.frame.marker_size, **dynamics)  # type: ignore[arg-type]
     config = VisualWorldModelConfig(task=layout.name, dynamics=visual, horizon=horizon, phase=phase, optim=optim)
     return Profile(config, batch, steps)
+
+
+def distill_profile(name: str, teacher: AnyWorldModelConfig, teacher_path: str, sampler_steps: int = 1) -> Profile[AnyWorldModelConfig]:
+    """A student of the visual model at ``teacher_path``: its network and windows, sampling in ``sampler_steps`` Euler
+    steps, trained (from the teacher's weights) to give the teacher's frames; ``cpu``: 2,000 steps, ``tiny``: tests."""
+    if not isinstance(teacher, VisualWorldModelConfig):
+        raise ValueError(f"{teacher_path}: a {teacher.obs_type} world model; distillation shortens a visual model's sampler")
+    if sampler_steps >= teacher.dynamics.sampler.steps:
+        raise ValueError(f"--sampler-steps {sampler_steps}: the teacher samples in {teacher.dynamics.sampler.steps}; "
+                         "a student takes fewer")
+    if name == "cpu":
+        batch, steps, optim = 8, 2000, OptimConfig(lr=1e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=50)
+    elif name == "tiny":
+        batch, steps, optim = 8, 10, OptimConfig(lr=1e-3, betas=(0.9, 0.999), weight_decay=0.0, warmup_steps=2)
+    else:
+        raise ValueError(f"distillation profile {name!r}: use cpu or tiny")
+    sampler = dataclasses.replace(teacher.dynamics.sampler, steps=sampler_steps)
+    config = dataclasses.replace(teacher, dynamics=dataclasses.replace(teacher.dynamics, sampler=sampler),
+                                 distill_from=str(teacher_path), optim=optim)
+    return Profile(config, batch, steps)

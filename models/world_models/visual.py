@@ -215,7 +215,30 @@ class VisualDynamics(nn.Module):
         loss = steps.mean()
         return loss, {"loss": loss.detach(), "loss_last_step": steps[-1].detach()}
 
-    def window_loss(self, batch: Mapping[str, torch.Tensor], config: VisualWorldModelConfig) -> tuple[torch.Tensor, dict[str, Any]]:
+    def distill_loss(self, frames: torch.Tensor, actions: torch.Tensor, teacher: VisualDynamics,
+                     action_noise: float) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """This model's sampled frame against ``teacher``'s, every prediction of the window from its true context.
+
+        Frozen noise on both sides: the student learns the teacher's deterministic map from
+        (context, actions) to the next frame. Each window's actions move by a Gaussian of a
+        random scale up to ``action_noise`` x the action extent (clamped to it), so the student
+        also agrees where planners take chunks: off the recorded actions.
+        """
+        c, h = self.config, self.config.history
+        b, n = frames.shape[0], frames.shape[1] - h
+        lo, hi = c.action_extent
+        scale = torch.rand(b, 1, 1, device=actions.device) * action_noise * (hi - lo)
+        moved = (actions + scale * torch.randn_like(actions)).clamp(lo, hi)
+        acts = moved.reshape(b, n, c.frameskip, -1).flatten(0, 1)
+        context = torch.stack([frames[:, j : j + h] for j in range(n)], dim=1).flatten(0, 1)  # (B N, H, C, S, S)
+        with torch.no_grad():
+            target = teacher.step(context, acts, "frozen")
+        err = (self.step(context, acts, "frozen") - target).pow(2)
+        loss = err.mean()
+        return loss, {"loss": loss.detach(), "distill_rmse": err.detach().mean(dim=(1, 2, 3)).sqrt().mean()}
+
+    def window_loss(self, batch: Mapping[str, torch.Tensor], config: VisualWorldModelConfig,
+                    teacher: VisualDynamics | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
         """A training batch ``{img: (B, W, S0, S0, C) 0..255, action: (B, W, A)}`` -> loss, logs.
 
         The window's frames are read every ``frameskip`` steps from its first: H context
@@ -224,4 +247,6 @@ class VisualDynamics(nn.Module):
         c, n0 = self.config, config.n_obs_steps
         frames = self.frames(batch[IMAGE_KEY][:, :: c.frameskip]) * 2.0 - 1.0
         actions = batch[ACTION_KEY].float()[:, n0 - 1 : n0 - 1 + config.horizon]
+        if teacher is not None:
+            return self.distill_loss(frames, actions, teacher, config.distill_action_noise)
         return self.loss(frames, actions, config.unroll_steps, config.feedback)
