@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from benchmarks.bench_policy import _policy
-from benchmarks.common import median_seconds, publish
+from benchmarks.common import publish, time_decisions
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
@@ -68,18 +68,7 @@ def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = 
             wm = SimulatorModel() if model == "gt-sim" else learned
             box = {"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high}
             planner = Planner(PlannerConfig(**fields, **box), wm, reward, policy, sampling)
-            gen = torch.Generator().manual_seed(0)
-            parts: dict[str, float] = {}
-
-            def decide() -> None:
-                with torch.no_grad():
-                    plan = planner.plan(obs, [gen])
-                for k, v in plan.seconds.items():
-                    parts[k] = parts.get(k, 0.0) + v
-
-            t = median_seconds(decide, number=1, repeat=5)
-            total = sum(parts.values()) or 1.0
-            share = ", ".join(f"{k} {v / total:.0%}" for k, v in sorted(parts.items(), key=lambda kv: -kv[1]))
+            t, share = time_decisions(planner, obs, 5)
             rows.append([label, f"DDIM-{steps}", f"{t:.3f} s", share, target])
     load = os.getloadavg()[0]
     header = ["planner", "policy sampling", "s/decision (median)", "time share", "target", "threads, load"]

@@ -21,7 +21,7 @@ import torch
 
 from benchmarks.bench_policy import _policy
 from benchmarks.bench_world_model import _model, _reward
-from benchmarks.common import median_seconds, publish
+from benchmarks.common import publish, time_decisions
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.planner import Planner
 from gpc.models.policy.module import PolicyModule
@@ -65,18 +65,7 @@ def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = 
         _with_lever(model, steps, bf16, channels_last)
         for label, fields, target in settings:
             planner = Planner(PlannerConfig(**fields, **box), model, reward, policy, SamplingConfig("ddim", 10))
-            gen = torch.Generator().manual_seed(0)
-            parts: dict[str, float] = {}
-
-            def decide() -> None:
-                with torch.no_grad():
-                    plan = planner.plan(obs, [gen])
-                for k, v in plan.seconds.items():
-                    parts[k] = parts.get(k, 0.0) + v
-
-            t = median_seconds(decide, number=1, repeat=repeat)
-            total = sum(parts.values()) or 1.0
-            share = ", ".join(f"{k} {v / total:.0%}" for k, v in sorted(parts.items(), key=lambda kv: -kv[1]))
+            t, share = time_decisions(planner, obs, repeat)
             rows.append([label, lever, f"{t:.2f} s", share, target])
     load = os.getloadavg()[0]
     header = ["planner", "world model", "s/decision (median)", "time share", "target", "threads, load"]

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from datetime import date
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.table import Table
@@ -66,3 +67,20 @@ def publish(title: str, name: str, header: list[str], rows: list[list[str]], doc
     show(title, header, rows)
     if doc:
         write_rows(doc, name, header, rows, key)
+
+
+def time_decisions(planner: Any, obs: dict, repeat: int) -> tuple[float, str]:
+    """Median seconds of ``planner``'s decision on ``obs`` (one history) and where the time went."""
+    import torch
+
+    gen, parts = torch.Generator().manual_seed(0), dict[str, float]()
+
+    def decide() -> None:
+        with torch.no_grad():
+            plan = planner.plan(obs, [gen])
+        for k, v in plan.seconds.items():
+            parts[k] = parts.get(k, 0.0) + v
+
+    t = median_seconds(decide, number=1, repeat=repeat)
+    total = sum(parts.values()) or 1.0
+    return t, ", ".join(f"{k} {v / total:.0%}" for k, v in sorted(parts.items(), key=lambda kv: -kv[1]))
