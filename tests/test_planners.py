@@ -362,6 +362,10 @@ def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
     assert set(summary["time_share"]) == {"policy", "world_model", "reward"}
     # the vision ceiling: the true simulator ranks the image policy's proposals, and delivers what it predicted
     vision_ceiling_delivers_its_predictions(PolicyModule.load_from_checkpoint(policy.last))
+    ceiling = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "gt-sim", "-K", "3", "--seeds", "100000:100002",
+                                       "--max-steps", "16", "--batch", "2", "--out", str(tmp_path / "ceiling")])
+    assert ceiling.exit_code == 0, ceiling.output
+    assert json.loads((tmp_path / "ceiling" / "summary.json").read_text())["controller"]["controller"] == "gt-sim K=3"
     # the ascent probe through the visual model and the learned reward (its model error compares frames)
     res = CliRunner().invoke(app, ["eval", "ascent", str(policy.last), "--planner", "opt", "-M", "2", "--world-model", str(wm.last),
                                    "--reward", "learned", "--reward-checkpoint", str(reward.last), "--seeds", "200000",
