@@ -172,23 +172,6 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
         np.testing.assert_allclose(reward.per_step(states)[0], reward.per_step(torch.as_tensor(predicted)[None])[0], atol=0.05)
 
 
-def vision_ceiling_delivers_its_predictions(policy: PolicyModule) -> None:
-    """gt-sim over an image policy: the chunk it picks delivers the reward it predicted (frames in, true states scored)."""
-    reward = build_reward(RewardSpec(), PUSHT)
-    p = Planner(PlannerConfig(kind="rank", num_proposals=4), SimulatorModel(), reward, policy)
-    assert "img" in p.obs_keys
-    env = PushTEnv()
-    env.reset(seed=100002)
-    o = observe(env, images=True, sim=True)
-    plan = p.plan({k: np.stack([v] * policy.config.n_obs_steps)[None] for k, v in o.items()}, gens((100002,)))
-    states = []
-    for action in plan.chunk[0]:
-        env.step(action)
-        states.append(env.sim.state())
-    delivered = reward(torch.as_tensor(np.array(states), dtype=torch.float32)[None])
-    assert float(delivered[0]) == pytest.approx(float(plan.scores[0, plan.chosen[0]]), abs=1e-3)
-
-
 def test_the_ascent_probe_scores_every_iterate_in_the_true_simulator(ckpts, tmp_path):
     args = ["eval", "ascent", ckpts["policy"], "--world-model", ckpts["wm"], "--seeds", "200000:200002", "--max-steps", "16",
             "--batch", "2"]
@@ -338,46 +321,6 @@ def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):
         assert len(server.requests) == decisions  # every answer came from the cache
     res = CliRunner().invoke(app, args[:-2] + ["--out", str(tmp_path / "v2")])
     assert res.exit_code != 0 and "--vlm-base-url" in res.output
-
-
-def test_vision_pipeline_plans_with_frames(ckpts, tmp_path):
-    """Image policy + visual world model + learned image reward, end to end through `gpc eval`."""
-    from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
-
-    collect(CollectJob(task="pusht", out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
-    data, run = [tmp_path / "img.zarr"], dict(batch_size=8, progress=False, accelerator="cpu")
-    policy = train(PolicyModule, policy_profile("tiny", "image", LAYOUT).config, data,
-                   RunConfig(run_dir=tmp_path / "p", max_steps=3, **run))
-    wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT, obs="image").config, data,
-                           RunConfig(run_dir=tmp_path / "w", max_steps=3, **run))
-    reward_config = reward_profile("tiny", LAYOUT).config
-    reward = train(RewardPredictorModule, reward_config, data, RunConfig(run_dir=tmp_path / "r", max_steps=3, **run))
-    out = tmp_path / "vision"
-    res = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "rank", "-K", "3", "--world-model", str(wm.last),
-                                   "--reward", "learned", "--reward-checkpoint", str(reward.last),
-                                   "--seeds", "100000:100002", "--max-steps", "16", "--batch", "2", "--out", str(out)])
-    assert res.exit_code == 0, res.output
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["controller"]["controller"] == "rank K=3" and 0.0 <= summary["mean_score"] <= 1.0
-    assert set(summary["time_share"]) == {"policy", "world_model", "reward"}
-    # the vision ceiling: the true simulator ranks the image policy's proposals, and delivers what it predicted
-    vision_ceiling_delivers_its_predictions(PolicyModule.load_from_checkpoint(policy.last))
-    ceiling = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "gt-sim", "-K", "3", "--seeds", "100000:100002",
-                                       "--max-steps", "16", "--batch", "2", "--out", str(tmp_path / "ceiling")])
-    assert ceiling.exit_code == 0, ceiling.output
-    assert json.loads((tmp_path / "ceiling" / "summary.json").read_text())["controller"]["controller"] == "gt-sim K=3"
-    # the ascent probe through the visual model and the learned reward (its model error compares frames)
-    res = CliRunner().invoke(app, ["eval", "ascent", str(policy.last), "--planner", "opt", "-M", "2", "--world-model", str(wm.last),
-                                   "--reward", "learned", "--reward-checkpoint", str(reward.last), "--seeds", "200000",
-                                   "--max-steps", "8", "--out", str(tmp_path / "ascent.md")])
-    assert res.exit_code == 0, res.output
-    report = json.loads((tmp_path / "ascent.json").read_text())
-    assert report["decisions"] == 1 and 0.0 < report["model_error"]["start_mean"] < 1.0  # pixel RMSE in [0, 1] units
-    # a visual world model cannot plan for a keypoint policy: one line naming both
-    bad = CliRunner().invoke(app, ["eval", ckpts["policy"], "--planner", "rank", "--world-model", str(wm.last),
-                                   "--seeds", "100000", "--out", str(tmp_path / "bad")])
-    assert bad.exit_code != 0 and "a visual world model cannot plan for a keypoints policy" in bad.output
-    assert len(bad.output.strip().splitlines()) == 1
 
 
 PLAIN_PYTHON = """

@@ -373,20 +373,18 @@ def test_eval_can_read_poses_with_the_learned_reward_predictor(phase2, store, tm
 def test_a_distilled_one_step_student_agrees_with_its_three_step_teacher(phase1, store, tmp_path):
     """`--distill`: the student samples in 1 step, nearer the teacher's 3-step frames than the teacher's own 1-step
     chain gets, gradients flow through it, and it plans without the teacher (whose weights stay out of its file)."""
-    teacher_path = tmp_path / "teacher.ckpt"
+    teacher_path, out = tmp_path / "teacher.ckpt", tmp_path / "student"
     teacher_path.write_bytes(Path(phase1.last).read_bytes())
-    out = tmp_path / "student"
     res = CliRunner().invoke(app, ["train", "world-model", "--distill", str(teacher_path), "--sampler-steps", "1", "--profile", "tiny",
                                    "--dataset", str(store), "--out", str(out), "--max-steps", "60", "--no-progress",
                                    "--accelerator", "cpu"])
     assert res.exit_code == 0, res.output
     teacher = WorldModelModule.load_from_checkpoint(teacher_path)
-    student_file = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
-    assert not any("teacher" in key for key in student_file["state_dict"])
+    assert not any("teacher" in key for key in torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"])
     teacher_path.unlink()  # a student plans alone
     student = WorldModelModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
     assert student.dynamics.config.sampler.steps == 1 and teacher.dynamics.config.sampler.steps == 3
-    history, actions = _windows(store, teacher, starts=((3, 3), (4, 9), (5, 15), (0, 12)))  # episodes 3-5: held out
+    history, actions = _windows(store, teacher, starts=((3, 3), (4, 9), (5, 15), (0, 12)))
     with torch.no_grad():
         target = teacher.rollout(history, actions)
         student_frames = student.rollout(history, actions)
