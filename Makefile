@@ -8,16 +8,17 @@ STAMP := $(VENV)/.gpc-installed
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
+# The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
+HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
 # SEEDS=START:STOP overrides the profile's test seeds (cpu: 100000:100100).
 # EXPLORE=0: the paper's ablation, the world model trained on expert data only (own runs and results).
 EXPLORE ?= 1
 # GOAL=random: GPC's variant, a goal pose drawn per seed: the policy is trained on expert
 # demonstrations towards random goals and reads the goal; the world model (goal-agnostic) is shared.
 GOAL ?= fixed
-# VWM=long (cpu profile): the visual world model's phase 1 restarted seven times from its own weights
-# (51,000 steps in all, about 4 hours on 2 cores) before 1,000 steps of phase 2. It shares phase 1 and
-# the first restart with the default (the same steps and seeds); later restarts, phase 2 and results are its own.
-VWM ?= short
+# VWM_PLAN: the visual world model the vision planners use, student (its one-step distillation, the default) or
+# teacher (the trained model's 3-step sampler); each has its own results.
+VWM_PLAN ?= student
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
   POLICY_DIR := $(RUN_DIR)/policy-random-goal
@@ -58,18 +59,18 @@ ifeq ($(PROFILE),smoke)
   CEILING := gt-sim-K4
   ARGS.gt-sim-K4 := --planner gt-sim -K 4
   VPOLICY := --profile tiny --max-steps 10
+  VPOLICY_DATA := $(RUN_DIR)/expert.zarr
   VWM1 := --profile tiny --max-steps 10
-  VWM1_RESTART_ARGS := --profile tiny
-  VWM1_RESTART_STEPS := 4 $(if $(filter long,$(VWM)),4)
   VWM2 := --profile tiny --max-steps 4
+  VDISTILL := --profile tiny --max-steps 4
   VREWARD := --profile tiny --max-steps 10
   VEVAL := --seeds 100000:100002 --max-steps 16 --batch 2
-  VPLANNERS := vrank-K3
+  VPLANNERS := vrank-K3 vopt-M2
   ARGS.vrank-K3 := --planner rank -K 3
+  ARGS.vopt-M2 := --planner opt -M 2
+  VCEILING := vgt-sim-K3
+  ARGS.vgt-sim-K3 := --planner gt-sim -K 3
 else ifeq ($(PROFILE),paper)
-  ifeq ($(VWM),long)
-    $(error VWM=long restarts the cpu profile's phase 1; the paper profile trains in one schedule)
-  endif
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
   POLICY := --profile paper
@@ -88,8 +89,10 @@ else ifeq ($(PROFILE),paper)
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
   VPOLICY := --profile paper
+  VPOLICY_DATA := $(HUMAN_DATA)
   VWM1 := --profile paper
   VWM2 := --profile paper
+  VDISTILL := --profile cpu
   VREWARD := --profile paper
   VEVAL := --seeds 100000:100100 --batch 50
   VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
@@ -97,6 +100,8 @@ else ifeq ($(PROFILE),paper)
   ARGS.vrank-K100 := --planner rank -K 100
   ARGS.vopt-M25 := --planner opt -M 25
   ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
+  VCEILING := vgt-sim-K100
+  ARGS.vgt-sim-K100 := --planner gt-sim -K 100
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
@@ -114,24 +119,22 @@ else ifeq ($(PROFILE),cpu)
   ARGS.grad-10x30 := --planner grad -K 10 -M 30
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
-  VPOLICY := --profile cpu --max-steps 3000
-  VWM1 := --profile cpu --max-steps 5000 --precision bf16-mixed
-  # Phase 1 again from its own weights, a fresh cosine schedule per entry (steps): once, block pose error
-  # 60% -> 40% of "nothing moves"; VWM=long, seven times: the block angle within half the baseline's (README).
-  VWM1_RESTART_ARGS := --profile cpu --precision bf16-mixed
-  ifeq ($(VWM),long)
-    VWM1_RESTART_STEPS := 6000 8000 4000 8000 8000 4000 8000
-    VWM2 := --profile cpu --max-steps 1000 --precision bf16-mixed
-  else
-    VWM1_RESTART_STEPS := 6000
-    VWM2 := --profile cpu --max-steps 2000 --precision bf16-mixed
-  endif
+  # The vision table (issue 19): an image policy on the human demonstrations, the visual world model in one
+  # schedule (phase 1 then phase 2, about 2.8 h here) and its one-step student, 100 test seeds.
+  VPOLICY := --profile cpu --max-steps 12000
+  VPOLICY_DATA := $(HUMAN_DATA)
+  VWM1 := --profile cpu --max-steps 38000 --precision bf16-mixed --val-every 5000
+  VWM2 := --profile cpu --max-steps 1000 --precision bf16-mixed --val-every 1000
+  VDISTILL := --profile cpu
   VREWARD := --profile cpu
-  VEVAL := --seeds $(or $(SEEDS),100000:100020) --batch 10
-  VPLANNERS := vrank-K8 vrank-K16 vopt-M5
-  ARGS.vrank-K8 := --planner rank -K 8
-  ARGS.vrank-K16 := --planner rank -K 16
-  ARGS.vopt-M5 := --planner opt -M 5
+  VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
+  VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
+  ARGS.vrank-K50 := --planner rank -K 50
+  ARGS.vrank-K100 := --planner rank -K 100
+  ARGS.vopt-M25 := --planner opt -M 25
+  ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
+  VCEILING := vgt-sim-K100
+  ARGS.vgt-sim-K100 := --planner gt-sim -K 100
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
@@ -140,7 +143,7 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM=long)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher)"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
@@ -176,7 +179,6 @@ types: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all --doc docs/benchmarks.md
 
-HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
 check-sim: $(STAMP)
 	$(BIN)/gpc check-sim --data $(HUMAN_DATA)
 
@@ -240,54 +242,48 @@ $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULT
 reproduce-pusht: $(TABLE)
 	@cat $(TABLE)
 
-# The vision pipeline: an image policy, the visual (EDM) world model and the learned image reward.
+# The vision pipeline: an image policy, the visual (EDM) world model (phase 1, phase 2, then its one-step student)
+# and the learned image reward; each stage resumes from what an interrupted run left.
 VPOLICY_CKPT := $(RUN_DIR)/vpolicy/checkpoints/last.ckpt
-ifeq ($(VWM),long)
-  VWM_RUN := $(WM_RUN)-visual-long
-  VRESULTS := $(RESULTS)-vision-long
-else ifeq ($(VWM),short)
-  VWM_RUN := $(WM_RUN)-visual
-  VRESULTS := $(RESULTS)-vision
-else
-  $(error VWM=$(VWM): use short or long)
-endif
+VWM_RUN := $(WM_RUN)-visual
 VWM_CKPT := $(VWM_RUN)-phase2/checkpoints/last.ckpt
-REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
-VTABLE := $(if $(filter cpu1short,$(PROFILE)$(EXPLORE)$(VWM)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
-
-$(RUN_DIR)/vpolicy.done: $(RUN_DIR)/expert.done
-	if [ -f $(VPOLICY_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train policy --dataset $(RUN_DIR)/expert.zarr --obs image $(VPOLICY) --seed 0 --out $(RUN_DIR)/vpolicy $$resume
-	touch $@
-
-$(WM_RUN)-visual-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
-	if [ -f $(WM_RUN)-visual-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(WM_RUN)-visual-phase1 $$resume
-	touch $@
-
-# VWM1_RESTART_STEPS: phase 1 restarted from its own weights once per entry (restart N: that many steps,
-# seed N, in wm-visual-phase1-restart, -restart2, ...); phase 2 starts from the last of them.
-RESTART_NS := $(wordlist 1,$(words $(VWM1_RESTART_STEPS)),1 2 3 4 5 6 7 8 9 10 11 12)
-ifneq ($(words $(VWM1_RESTART_STEPS)),$(words $(RESTART_NS)))
-  $(error VWM1_RESTART_STEPS: at most 12 restarts)
+VSTUDENT_CKPT := $(VWM_RUN)-1step/checkpoints/last.ckpt
+ifeq ($(VWM_PLAN),student)
+  VPLAN_DONE := $(VWM_RUN)-1step.done
+  VPLAN_CKPT := $(VSTUDENT_CKPT)
+  VRESULTS := $(RESULTS)-vision
+else ifeq ($(VWM_PLAN),teacher)
+  VPLAN_DONE := $(VWM_RUN)-phase2.done
+  VPLAN_CKPT := $(VWM_CKPT)
+  VRESULTS := $(RESULTS)-vision-teacher
+else
+  $(error VWM_PLAN=$(VWM_PLAN): use student or teacher)
 endif
-restart_run = $(WM_RUN)-visual-phase1$(if $(filter 0,$(1)),,-restart$(filter-out 1,$(1)))
-define restart_rule
-$(call restart_run,$(1)).done: $(call restart_run,$(word $(1),0 $(RESTART_NS))).done
-	if [ -f $(call restart_run,$(1))/checkpoints/last.ckpt ]; then resume=--resume; \
-	else resume="--init $(call restart_run,$(word $(1),0 $(RESTART_NS)))/checkpoints/last.ckpt"; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1_RESTART_ARGS) --max-steps $(word $(1),$(VWM1_RESTART_STEPS)) \
-	  --seed $(1) --out $(call restart_run,$(1)) $$$$resume
-	touch $$@
-endef
-$(foreach n,$(RESTART_NS),$(eval $(call restart_rule,$(n))))
-VWM1_LAST := $(call restart_run,$(or $(lastword $(RESTART_NS)),0))
-VWM2_SEED := $(if $(filter long,$(VWM)),$(words $(RESTART_NS)),0)
+REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
+VTABLE := $(if $(filter cpu1student,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
+VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
 
-$(VWM_RUN)-phase2.done: $(VWM1_LAST).done
-	if [ -f $(VWM_CKPT) ]; then resume=--resume; else resume="--init $(VWM1_LAST)/checkpoints/last.ckpt"; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) $(VWM2) --seed $(VWM2_SEED) --out $(VWM_RUN)-phase2 $$resume
+$(RUN_DIR)/vpolicy.done: $(VPOLICY_DEPS) | $(STAMP)
+	if [ -f $(VPOLICY_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train policy --dataset $(VPOLICY_DATA) --obs image $(VPOLICY) --seed 0 --out $(RUN_DIR)/vpolicy $$resume
+	touch $@
+
+$(VWM_RUN)-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(VWM_RUN)-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(VWM_RUN)-phase1 $$resume
+	touch $@
+
+$(VWM_RUN)-phase2.done: $(VWM_RUN)-phase1.done
+	if [ -f $(VWM_CKPT) ]; then resume=--resume; else resume="--init $(VWM_RUN)-phase1/checkpoints/last.ckpt"; fi; \
+	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) $(VWM2) --seed 0 --out $(VWM_RUN)-phase2 $$resume
 	$(BIN)/gpc eval world-model $(VWM_CKPT) $(WM_DATA)
+	touch $@
+
+$(VWM_RUN)-1step.done: $(VWM_RUN)-phase2.done
+	if [ -f $(VSTUDENT_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --distill $(VWM_CKPT) --sampler-steps 1 $(WM_DATA) $(VDISTILL) --seed 0 \
+	  --out $(VWM_RUN)-1step $$resume
+	$(BIN)/gpc eval world-model $(VSTUDENT_CKPT) $(WM_DATA)
 	touch $@
 
 $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
@@ -296,14 +292,16 @@ $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	  --out $(RUN_DIR)/reward $$resume
 	touch $@
 
-VDONE := $(RUN_DIR)/vpolicy.done $(VWM_RUN)-phase2.done $(RUN_DIR)/reward.done
+VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done
 $(eval $(call eval_rule,bc,$(VRESULTS),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
 $(foreach n,$(VPLANNERS),$(eval $(call eval_rule,$(n),$(VRESULTS),$(VDONE),\
-  $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VWM_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) $(VEVAL))))
+  $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) $(VEVAL))))
+$(eval $(call eval_rule,$(VCEILING),$(VRESULTS),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL)))
 
-$(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json)
-	$(BIN)/gpc compare $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)) --baseline $(VRESULTS)/bc --paper pusht-vision --out $@ \
-	  --title "Vision Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC (image policy trained on expert data)"
+$(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS) $(VCEILING),$(VRESULTS)/$(n)/summary.json)
+	$(BIN)/gpc compare $(foreach n,$(VPLANNERS) $(VCEILING),$(VRESULTS)/$(n)) --baseline $(VRESULTS)/bc \
+	  --ceiling $(VRESULTS)/$(VCEILING) --paper pusht-vision --out $@ \
+	  --title "Vision Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC ($(VWM_PLAN) world model)"
 
 reproduce-pusht-vision: $(VTABLE)
 	@cat $(VTABLE)

@@ -61,21 +61,21 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     vision = subprocess.run(vargs, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
     table = json.loads((tmp_path / "results-vision" / "pusht_vision.json").read_text())
-    assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3"]
+    assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3", "opt M=2", "gt-sim K=3"]
     assert_table_is_what_was_measured(table, (tmp_path / "results-vision" / "pusht_vision.md").read_text(),
-                                      tmp_path / "results-vision", ["bc", "vrank-K3"])
-    phase2 = json.loads((tmp_path / "runs" / "wm-visual-phase2" / "run.json").read_text())
-    assert phase2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
-    shared = {p: p.stat().st_mtime_ns for p in (tmp_path / "runs").glob("wm-visual-phase*/checkpoints/last.ckpt")}
-    long = subprocess.run(vargs + ["VWM=long"], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert long.returncode == 0, long.stdout[-2000:] + long.stderr[-2000:]  # one restart more, then its own phase 2
-    assert len(shared) == 3 and {p: p.stat().st_mtime_ns for p in shared} == shared  # the default's runs are reused as they are
-    restart2 = json.loads((tmp_path / "runs" / "wm-visual-phase1-restart2" / "run.json").read_text())
-    assert restart2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart" / "checkpoints" / "last.ckpt")
-    assert restart2["seed"] == 2
-    long2 = json.loads((tmp_path / "runs" / "wm-visual-long-phase2" / "run.json").read_text())
-    assert long2["init"] == str(tmp_path / "runs" / "wm-visual-phase1-restart2" / "checkpoints" / "last.ckpt")
-    assert long2["seed"] == 2 and (tmp_path / "results-vision-long" / "pusht_vision.md").exists()
+                                      tmp_path / "results-vision", ["bc", "vrank-K3", "vopt-M2", "vgt-sim-K3"])
+    assert table["rows"][-1]["label"] == "gt-sim K=3" and "gap closed" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
+    runs = tmp_path / "runs"
+    phase2 = json.loads((runs / "wm-visual-phase2" / "run.json").read_text())
+    assert phase2["init"] == str(runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt")  # one schedule: no restarts
+    student = json.loads((runs / "wm-visual-1step" / "run.json").read_text())
+    assert student["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt")
+    assert student["config"]["distill_from"] == student["init"] and student["config"]["dynamics"]["sampler"]["steps"] == 1
+    planned = json.loads((tmp_path / "results-vision" / "vopt-M2" / "summary.json").read_text())["run"]["controller"]
+    assert planned["world_model"] == str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")  # the student plans
+    teacher = subprocess.run(vargs + ["VWM_PLAN=teacher", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert teacher.returncode == 0 and "--world-model " + str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") in teacher.stdout
+    assert "wm-visual-1step" not in teacher.stdout and "results-vision-teacher" in teacher.stdout
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
     stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
