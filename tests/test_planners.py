@@ -147,6 +147,8 @@ def test_ascent_guards_keep_the_chunk_near_its_start_and_never_below_it(ckpts):
     assert trace.action_grads[0].shape == (3, 3, init.shape[2]) and trace.future_grads[0].shape[:2] == (3, 3)
     assert float(trace.action_grads[0].sum()) > 0 and float(trace.future_grads[0].sum()) > 0
     assert step_size(best, 0) == 40.0 and step_size(best, 3) == pytest.approx(20.0) and step_size(best, 6) == pytest.approx(0.0)
+    weights = list(p.world_model.parameters())  # the planner froze them: ascent computed no gradient for the model
+    assert weights and all(not w.requires_grad and w.grad is None for w in weights)
 
 
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):

@@ -29,7 +29,8 @@ class Planner:
     """A ``Controller``: GPC-RANK / OPT / RANK+OPT on the policy's proposals, or CEM / MPPI / grad without them.
 
     ``world_model.obs_key`` (default ``state``) names the observation the world model reads;
-    an observation ``goal`` (tasks with a per-episode goal) is passed to the reward.
+    an observation ``goal`` (tasks with a per-episode goal) is passed to the reward. The world
+    model's and reward's weights are frozen here (``requires_grad_(False)``): ascent moves actions only.
     """
 
     def __init__(self, config: PlannerConfig, world_model: WorldModel, reward: Reward,
@@ -40,6 +41,9 @@ class Planner:
         if config.uses_gradients and getattr(reward, "selects", False):
             raise ValueError(f"planner {config.kind} needs a differentiable reward; a selecting reward only ranks")
         self.config, self.world_model, self.reward, self.policy, self.sampling = config, world_model, reward, policy, sampling
+        for frozen in (world_model, reward):  # ascent differentiates the actions only: no gradients for the weights
+            if isinstance(frozen, torch.nn.Module):
+                frozen.requires_grad_(False)
         self.wm_key = getattr(world_model, "obs_key", "state")
         if policy is not None:
             pc = policy.config
