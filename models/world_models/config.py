@@ -158,6 +158,7 @@ class VisualDynamicsConfig:
     motion_weight: float = 0.0  # training: pixels weigh 1 + this x their change since the previous frame (mean |diff| in [-1, 1] units)
     source_size: int | None = None  # frame size of the training stores (filled from the data; others are resized with a warning)
     bf16: bool = False  # run rollouts under bfloat16 autocast (about 1.5x faster 2-D convolutions on CPU)
+    channels_last: bool = False  # keep the U-Net's weights channels-last (about 9% off a planning decision on CPU)
 
     def __post_init__(self) -> None:
         for name in ("resolution", "history", "frameskip", "action_dim", "img_channels"):
@@ -338,5 +339,6 @@ def with_network_of(config: AnyWorldModelConfig, source: AnyWorldModelConfig) ->
     if isinstance(config, WorldModelConfig) and isinstance(source, WorldModelConfig):
         return dataclasses.replace(config, dynamics=source.dynamics)
     assert isinstance(config, VisualWorldModelConfig) and isinstance(source, VisualWorldModelConfig)  # same obs_type
-    # the sampler is inference, not network: a distillation student keeps its own (fewer) steps
-    return dataclasses.replace(config, dynamics=dataclasses.replace(source.dynamics, sampler=config.dynamics.sampler))
+    # the sampler and the memory layout are not the network: a distillation student keeps its own
+    dynamics = dataclasses.replace(source.dynamics, sampler=config.dynamics.sampler, channels_last=config.dynamics.channels_last)
+    return dataclasses.replace(config, dynamics=dynamics)

@@ -74,7 +74,7 @@ def _visual_profile(name: str, phase: int, layout: TaskLayout) -> Profile[AnyWor
     one = phase == 1
     if name == "cpu":
         unet = UNet2DConfig(channels=(16, 32, 64), depths=(1, 1, 1), cond_channels=128)
-        dynamics = dict(resolution=48, history=4, frameskip=4, unet=unet, motion_weight=8.0, bf16=True)
+        dynamics = dict(resolution=48, history=4, frameskip=4, unet=unet, motion_weight=8.0, bf16=True, channels_last=True)
         horizon, batch, steps = 16, 8, 5000 if one else 1000  # batch 8 windows = 32 predictions per step
         optim = OptimConfig(lr=5e-4 if one else 2e-4, betas=(0.9, 0.999), weight_decay=1e-2, warmup_steps=200 if one else 20)
     elif name == "tiny":
@@ -111,7 +111,7 @@ def distill_profile(name: str, teacher: AnyWorldModelConfig, teacher_path: str, 
         batch, steps, optim = 8, 10, OptimConfig(lr=1e-3, betas=(0.9, 0.999), weight_decay=0.0, warmup_steps=2)
     else:
         raise ValueError(f"distillation profile {name!r}: use cpu or tiny")
-    sampler = dataclasses.replace(teacher.dynamics.sampler, steps=sampler_steps)
-    config = dataclasses.replace(teacher, dynamics=dataclasses.replace(teacher.dynamics, sampler=sampler),
+    sampler = dataclasses.replace(teacher.dynamics.sampler, steps=sampler_steps)  # a student plans: channels-last
+    config = dataclasses.replace(teacher, dynamics=dataclasses.replace(teacher.dynamics, sampler=sampler, channels_last=True),
                                  distill_from=str(teacher_path), optim=optim)
     return Profile(config, batch, steps)

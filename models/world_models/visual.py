@@ -63,6 +63,8 @@ class VisualDynamics(nn.Module):
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s * (hi - lo) + lo  # pixel centres in action units
         self.register_buffer("pixel_centres", centres, persistent=False)
         self._warned: set[int] = set()
+        if config.channels_last:  # loading weights copies into these tensors and keeps their layout
+            self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stubs omit the keyword
 
     def use_sampler(self, sampler: EulerConfig) -> None:
         """Samples with another Euler chain (e.g. more steps) without retraining: the denoiser is unchanged."""
