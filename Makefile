@@ -40,6 +40,14 @@ else
   RESULTS ?= results/pusht-$(PROFILE)$(GOAL_TAG)
 endif
 
+# The paper's vision table (Table II: its K and M) and its ceiling, the true simulator ranking the image policy's proposals.
+PAPER_VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
+ARGS.vrank-K50 := --planner rank -K 50
+ARGS.vrank-K100 := --planner rank -K 100
+ARGS.vopt-M25 := --planner opt -M 25
+ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
+ARGS.vgt-sim-K100 := --planner gt-sim -K 100
+
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
 # PLANNERS: the controllers evaluated on the same seeds (result folder names); ARGS.NAME: their gpc eval options.
 ifeq ($(PROFILE),smoke)
@@ -95,13 +103,8 @@ else ifeq ($(PROFILE),paper)
   VDISTILL := --profile cpu
   VREWARD := --profile paper
   VEVAL := --seeds 100000:100100 --batch 50
-  VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
-  ARGS.vrank-K50 := --planner rank -K 50
-  ARGS.vrank-K100 := --planner rank -K 100
-  ARGS.vopt-M25 := --planner opt -M 25
-  ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
+  VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
-  ARGS.vgt-sim-K100 := --planner gt-sim -K 100
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
@@ -129,13 +132,8 @@ else ifeq ($(PROFILE),cpu)
   VDISTILL := --profile cpu
   VREWARD := --profile cpu
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
-  VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
-  ARGS.vrank-K50 := --planner rank -K 50
-  ARGS.vrank-K100 := --planner rank -K 100
-  ARGS.vopt-M25 := --planner opt -M 25
-  ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25
+  VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
-  ARGS.vgt-sim-K100 := --planner gt-sim -K 100
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
