@@ -380,8 +380,8 @@ def test_a_distilled_one_step_student_agrees_with_its_three_step_teacher(phase1,
                                    "--accelerator", "cpu"])
     assert res.exit_code == 0, res.output
     teacher = WorldModelModule.load_from_checkpoint(teacher_path)
+    teacher_path.unlink()  # a student plans alone, its file holds no teacher
     assert not any("teacher" in key for key in torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"])
-    teacher_path.unlink()  # a student plans alone
     student = WorldModelModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
     conv = next(w for w in student.parameters() if w.dim() == 4)  # a planning student keeps its weights channels-last
     assert student.dynamics.config.sampler.steps == 1 and conv.is_contiguous(memory_format=torch.channels_last)
@@ -393,8 +393,7 @@ def test_a_distilled_one_step_student_agrees_with_its_three_step_teacher(phase1,
         shortcut = teacher.rollout(history, actions)  # the teacher's own chain cut to one step
     rmse = lambda a, b: float((a - b).pow(2).mean().sqrt())  # noqa: E731
     assert rmse(student_frames, target) < 0.7 * rmse(shortcut, target), (rmse(student_frames, target), rmse(shortcut, target))
-    moved = actions.clone().requires_grad_(True)
-    (student.rollout(history, moved) * torch.linspace(0, 1, 16)).sum().backward()
+    (student.rollout(history, moved := actions.clone().requires_grad_(True)) * torch.linspace(0, 1, 16)).sum().backward()
     assert moved.grad is not None and bool(torch.isfinite(moved.grad).all()) and float(moved.grad.abs().sum()) > 0
     bad = CliRunner().invoke(app, ["train", "world-model", "--distill", str(out / "checkpoints" / "last.ckpt"), "--profile", "tiny",
                                    "--dataset", str(store), "--out", str(tmp_path / "s2")])  # --sampler-steps 1 by default
