@@ -72,7 +72,7 @@ def test_a_stopped_or_killed_eval_resumes_to_the_results_of_an_uninterrupted_one
 def test_a_stopped_training_keeps_its_last_step_and_resumes(tiny_pusht, tmp_path, sig):
     run = tmp_path / "run"
     args = ["train", "policy", "--dataset", str(tiny_pusht["store"]), "--out", str(run), "--profile", "tiny", "--max-steps", "300",
-            "--batch-size", "8", "--accelerator", "cpu", "--no-progress", "--checkpoint-every", "10000"]
+            "--batch-size", "8", "--accelerator", "cpu", "--no-progress", "--checkpoint-every", "10000", "--val-every", "10000"]
     proc = spawn(*args)
     wait_for(lambda: (run / "tensorboard").is_dir() and any((run / "tensorboard").iterdir()), timeout=180)
     time.sleep(1.0)
@@ -83,5 +83,6 @@ def test_a_stopped_training_keeps_its_last_step_and_resumes(tiny_pusht, tmp_path
     import torch
 
     assert torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)["global_step"] == step
+    assert not (run / "checkpoints" / "best.ckpt").exists(), "the stop waited for a validation pass"
     done = gpc(*args, "--resume")
     assert done.returncode == 0 and "step 300;" in done.stdout, done.stderr[-1500:]

@@ -134,3 +134,6 @@ class StopOnSignal(Callback):
         if requested() is not None and self.stopped_at is None:
             self.stopped_at = trainer.global_step
             trainer.should_stop = True
+            # Lightning runs a whole validation pass before honouring should_stop: on an image world model that
+            # held a SIGTERM for minutes (20 beside another job). A stop keeps the step's weights, not a score.
+            trainer.fit_loop.epoch_loop._skip_next_val = True
