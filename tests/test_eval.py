@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -78,6 +78,56 @@ def test_bc_results_are_identical_for_any_worker_count_and_repeatable(checkpoint
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["mean_score"] == one["mean_score"]
     assert "| 100000..100003 (4) |" in (tmp_path / "out" / "summary.md").read_text()
+
+
+class EndsEarly(PushTEnv):
+    """Push-T whose episode of seed s ends (as a success) after 4 (s - 100000) + 3 steps: groups finish unevenly."""
+
+    def reset(self, seed=None, options=None):
+        self.left = 4 * (seed - 100000) + 3
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        self.left -= 1
+        return obs, reward, terminated or self.left <= 0, truncated, info
+
+
+class Sizes:
+    """HoldStill that keeps the episodes it is told of and the batch of every call."""
+
+    obs_keys, n_obs_steps = HoldStill.obs_keys, HoldStill.n_obs_steps
+
+    def __init__(self) -> None:
+        self.told: list[list[int]] = []
+        self.batches: list[int] = []
+
+    def start(self, episodes) -> None:
+        self.told.append(list(episodes))
+
+    def plan(self, obs, generators) -> Plan:
+        assert len(generators) == obs["state"].shape[0]
+        self.batches.append(obs["state"].shape[0])
+        return HoldStill().plan(obs, generators)
+
+
+def test_finished_episodes_are_not_planned_for_and_results_do_not_change(checkpoint, monkeypatch):
+    import gpc.harness.evaluation as evaluation
+
+    task = evaluation.get_task("pusht")
+    monkeypatch.setattr(evaluation, "get_task", lambda name: replace(task, make_env=lambda goal: EndsEarly()))
+    sizes = Sizes()
+    res = run_group(sizes, SEEDS, EvalConfig(task="pusht", seeds=SEEDS, max_steps=20, batch=4))
+    assert [r["steps"] for r in res["episodes"]] == [3, 7, 11, 15] and all(r["success"] for r in res["episodes"])
+    assert sizes.batches == [4, 3, 2, 1] and res["call_sizes"] == sizes.batches  # 4 actions a call
+    assert sizes.told == [list(SEEDS), list(SEEDS[1:]), list(SEEDS[2:]), list(SEEDS[3:])]
+    # A real policy's episodes in one uneven group are each one's alone, up to the float rounding of a batch size.
+    factory = PlannerRecipe(str(checkpoint))
+    together = evaluate(factory, EvalConfig(task="pusht", seeds=SEEDS, max_steps=20, batch=4))["episodes"]
+    alone = evaluate(factory, EvalConfig(task="pusht", seeds=SEEDS, max_steps=20, batch=1))["episodes"]
+    assert [r["steps"] for r in together] == [r["steps"] for r in alone] == [3, 7, 11, 15]
+    for a, b in zip(together, alone):
+        assert a["final_state"] == pytest.approx(b["final_state"], abs=1e-2)
 
 
 def test_episode_streams_are_independent_of_batch_layout():

@@ -94,22 +94,24 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         for s in seeds]
     done = [False] * len(seeds)
     latencies: list[float] = []
+    sizes: list[int] = []  # episodes planned for in each call
     parts: dict[str, float] = {}
     films: dict[int, list[np.ndarray]] = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
-    while not all(done):
-        obs = {k: np.stack([np.stack([h[k] for h in hs]) for hs in hist]) for k in hist[0][0]}
+    live = list(range(len(seeds)))
+    while live:
+        obs = {k: np.stack([np.stack([h[k] for h in hist[i]]) for i in live]) for k in hist[0][0]}
         t0 = time.perf_counter()
-        plan = controller.plan(obs, gens)
+        plan = controller.plan(obs, [gens[i] for i in live])
         latencies.append(time.perf_counter() - t0)
+        sizes.append(len(live))
         interrupts.check()  # between decisions: the group is given up whole, never half recorded
         for name, sec in plan.seconds.items():
             parts[name] = parts.get(name, 0.0) + sec
-        for i, env in enumerate(envs):
-            if done[i]:
-                continue
-            for j, action in enumerate(plan.actions[i]):
+        for r, i in enumerate(live):
+            env = envs[i]
+            for j, action in enumerate(plan.actions[r]):
                 if i in films:
-                    films[i].extend(_film_frames(task, env, plan, i, j, config.video_size))
+                    films[i].extend(_film_frames(task, env, plan, r, j, config.video_size))
                 _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
                 row = rows[i]
                 row["steps"] += 1
@@ -122,13 +124,17 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                     done[i] = True
                     break
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]
+        still = [i for i in live if not done[i]]
+        if still != live and still and hasattr(controller, "start"):
+            controller.start([seeds[i] for i in still])
+        live = still  # a finished episode is not planned for: the rest's decisions come sooner
     for i, film in films.items():
         from gpc.harness.video import write_mp4
 
         assert config.video_dir is not None  # EvalConfig refuses videos without a directory
         write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
     stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
-    return {"episodes": rows, "calls": latencies, "group_size": len(seeds), "parts": parts, "stats": stats,
+    return {"episodes": rows, "calls": latencies, "call_sizes": sizes, "group_size": len(seeds), "parts": parts, "stats": stats,
             "n_action_steps": getattr(controller, "n_action_steps", None)}
 
 
@@ -228,7 +234,7 @@ def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> 
     """Mean score, success rate and decision latency (per batched call and per episode decision)."""
     rows = sorted((r for g in groups for r in g["episodes"]), key=lambda r: r["seed"])
     calls = [c for g in groups for c in g["calls"]]
-    per_episode = [c / g["group_size"] for g in groups for c in g["calls"]]
+    per_episode = [c / n for g in groups for c, n in zip(g["calls"], g.get("call_sizes", [g["group_size"]] * len(g["calls"])))]
     parts: dict[str, float] = {}
     for g in groups:
         for name, sec in g["parts"].items():

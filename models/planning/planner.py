@@ -64,7 +64,8 @@ class Planner:
         self.trace: AscentTrace | None = None  # set one to record the next decisions' gradient ascent (diagnostics)
 
     def start(self, episodes: Sequence[int]) -> None:
-        """The harness names the lockstep group's episodes (seeds) before its first decision."""
+        """The harness names the episodes (seeds) of the next decisions' histories: the lockstep group's before
+        its first decision, the unfinished ones whenever some finish."""
         self.episodes = list(episodes)
 
     def stats(self) -> dict[str, Any]:
