@@ -234,6 +234,7 @@ def summarize(groups: list[dict[str, Any]], wall: float, config: EvalConfig) -> 
     """Mean score, success rate and decision latency (per batched call and per episode decision)."""
     rows = sorted((r for g in groups for r in g["episodes"]), key=lambda r: r["seed"])
     calls = [c for g in groups for c in g["calls"]]
+    # Groups saved before finished episodes were dropped from the calls (a resumed run reads them) planned for all.
     per_episode = [c / n for g in groups for c, n in zip(g["calls"], g.get("call_sizes", [g["group_size"]] * len(g["calls"])))]
     parts: dict[str, float] = {}
     for g in groups:
