@@ -35,6 +35,8 @@ Precision = Annotated[str, typer.Option("--precision", help="32-true, bf16-mixed
 Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed for weights, shuffling, noise and the validation split.")]
 Resume = Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its last checkpoint.")]
 CheckpointEvery = Annotated[int, typer.Option("--checkpoint-every", min=1, help="Steps between refreshes of last.ckpt.")]
+CheckpointMinutes = Annotated[float, typer.Option("--checkpoint-minutes", min=0.01,
+                                                  help="Also refresh last.ckpt once this many minutes have passed.")]
 ValRatio = Annotated[float, typer.Option("--val-ratio", min=0.0, max=0.99, help="Share of episodes held out for validation.")]
 ValEvery = Annotated[int | None, typer.Option("--val-every", min=1, help="Steps between validations (default: each epoch).")]
 NumWorkers = Annotated[int, typer.Option("--num-workers", min=0, help="DataLoader worker processes.")]
@@ -48,7 +50,8 @@ RUN_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
     ("max_steps", MaxSteps, None), ("max_epochs", MaxEpochs, None), ("batch_size", BatchSize, None),
     ("accelerator", Accelerator, "auto"), ("devices", Devices, "1"), ("strategy", Strategy, "auto"),
     ("num_nodes", NumNodes, 1), ("precision", Precision, "32-true"), ("seed", Seed, 0), ("resume", Resume, False),
-    ("checkpoint_every", CheckpointEvery, 500), ("val_every", ValEvery, None), ("val_ratio", ValRatio, 0.05), ("num_workers", NumWorkers, 0),
+    ("checkpoint_every", CheckpointEvery, 500), ("checkpoint_minutes", CheckpointMinutes, 10.0),
+    ("val_every", ValEvery, None), ("val_ratio", ValRatio, 0.05), ("num_workers", NumWorkers, 0),
     ("progress", Progress, True),
 )
 

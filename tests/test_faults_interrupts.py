@@ -86,3 +86,23 @@ def test_a_stopped_training_keeps_its_last_step_and_resumes(tiny_pusht, tmp_path
     assert not (run / "checkpoints" / "best.ckpt").exists(), "the stop waited for a validation pass"
     done = gpc(*args, "--resume")
     assert done.returncode == 0 and "step 300;" in done.stdout, done.stderr[-1500:]
+
+
+def test_a_killed_training_loses_at_most_checkpoint_minutes_and_resumes(tiny_pusht, tmp_path):
+    """SIGKILL (a machine taken back) runs no handler: slow steps still lose little, because the clock refreshes last.ckpt."""
+    import torch
+
+    run = tmp_path / "run"
+    args = lambda steps: ["train", "policy", "--dataset", str(tiny_pusht["store"]), "--out", str(run), "--profile", "tiny",  # noqa: E731
+                          "--max-steps", str(steps), "--batch-size", "8", "--accelerator", "cpu", "--no-progress",
+                          "--checkpoint-every", "100000", "--val-every", "100000", "--checkpoint-minutes", "0.01"]
+    proc = spawn(*args(100000))
+    last = run / "checkpoints" / "last.ckpt"
+    wait_for(lambda: torch.load(last, weights_only=True)["global_step"] > 0, timeout=180)
+    first = torch.load(last, weights_only=True)["global_step"]
+    wait_for(lambda: torch.load(last, weights_only=True)["global_step"] > first, timeout=60)  # refreshed again, by the clock
+    finish(proc, signal.SIGKILL)
+    step = torch.load(last, weights_only=True)["global_step"]
+    assert 0 < step < 100000 and not (run / "checkpoints" / "best.ckpt").exists()
+    done = gpc(*args(step + 5), "--resume")
+    assert done.returncode == 0 and f"step {step + 5};" in done.stdout, done.stderr[-1500:]

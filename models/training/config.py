@@ -48,6 +48,7 @@ class RunConfig:
     resume: bool = False  # continue from run_dir/checkpoints/last.ckpt
     progress: bool = True  # rich progress bar
     checkpoint_every: int = 500  # optimiser steps between refreshes of last.ckpt
+    checkpoint_minutes: float | None = 10.0  # also refresh it once this long has passed (slow steps lose little)
     val_every: int | None = None  # optimiser steps between validations (None: once per epoch)
     val_ratio: float = 0.05  # fraction of episodes held out for validation
     num_workers: int = 0  # DataLoader worker processes
@@ -61,6 +62,8 @@ class RunConfig:
         for name in ("batch_size", "num_nodes", "checkpoint_every", "log_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
+        if self.checkpoint_minutes is not None and not self.checkpoint_minutes > 0:
+            raise ValueError(f"checkpoint_minutes {self.checkpoint_minutes}: must be above 0")
         if self.max_steps is None and self.max_epochs is None:
             raise ValueError("give max_steps or max_epochs")
 

@@ -7,7 +7,7 @@ predictor alike (``gpc.models.training.module.TrainableModule`` says what each s
 Run directory layout::
 
     RUN_DIR/run.json                 what was trained on what (written by rank 0)
-    RUN_DIR/checkpoints/last.ckpt    refreshed every ``checkpoint_every`` steps and at the end
+    RUN_DIR/checkpoints/last.ckpt    refreshed every ``checkpoint_every`` steps, ``checkpoint_minutes`` and at the end
     RUN_DIR/checkpoints/best.ckpt    lowest validation loss so far
     RUN_DIR/tensorboard/             TensorBoard events
 
@@ -25,6 +25,7 @@ import json
 import logging
 import os
 import shutil
+import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -77,11 +78,12 @@ class TrainResult:
 
 
 class LastCheckpoint(Callback):
-    """Writes ``last.ckpt`` every ``every`` steps and at the end, via a temporary file and a rename."""
+    """Writes ``last.ckpt`` every ``every`` steps, every ``minutes`` and at the end, via a temporary file and a
+    rename. The clock bounds what a killed run loses when steps are slow (a CPU job beside another)."""
 
-    def __init__(self, path: Path, every: int) -> None:
-        self.path, self.every = path, every
-        self._saved_at = -1
+    def __init__(self, path: Path, every: int, minutes: float | None = None) -> None:
+        self.path, self.every, self.seconds = path, every, None if minutes is None else 60.0 * minutes
+        self._saved_at, self._saved_time = -1, time.monotonic()
 
     def _save(self, trainer: L.Trainer) -> None:
         tmp = self.path.with_name(self.path.name + ".tmp")
@@ -93,10 +95,13 @@ class LastCheckpoint(Callback):
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("gpc-last-checkpoint")
-        self._saved_at = trainer.global_step
+        self._saved_at, self._saved_time = trainer.global_step, time.monotonic()
 
     def on_train_batch_end(self, trainer: L.Trainer, *args: object) -> None:
-        if trainer.global_step % self.every == 0 and trainer.global_step != self._saved_at:
+        due = trainer.global_step % self.every == 0
+        if self.seconds is not None:  # rank 0's clock decides for all ranks, so the collective save stays in step
+            due = bool(trainer.strategy.broadcast(due or time.monotonic() - self._saved_time >= self.seconds, src=0))
+        if due and trainer.global_step != self._saved_at:
             self._save(trainer)
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -280,7 +285,7 @@ def fit_module(module: TrainableModule, data: L.LightningDataModule, run: RunCon
     ckpt_dir = run_dir / "checkpoints"
     last = ckpt_dir / LAST
     ckpt_dir.mkdir(parents=True, exist_ok=True)
-    callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every), LearningRateMonitor("step"), *extra]
+    callbacks: list[Callback] = [LastCheckpoint(last, run.checkpoint_every, run.checkpoint_minutes), LearningRateMonitor("step"), *extra]
     best_cb = None
     if validate:
         best_cb = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST[:-5], monitor="val/loss", mode="min", save_top_k=1,
