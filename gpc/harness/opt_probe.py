@@ -7,6 +7,9 @@ step this gives the predicted gain, the true gain, how far the chunk moved and w
 gradient flows (per action, per predicted step). The world model's error on the iterate it
 starts from and the one it returns tells a world model driven off its data (the error grows)
 from a reward misreading faithful predictions (the error stays, the true gain does not come).
+For image models the planner's reward also reads the true frames of both (rendered from the
+simulator): its gain there splits the predicted-vs-true gap into the world model's share (the
+reward is right on true frames, the predicted frames mislead it) and the reward's own.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ class Decision:
     action_grads: np.ndarray  # (B, K, M, T)
     future_grads: np.ndarray  # (B, K, M, T')
     model_error: np.ndarray  # (B, K, 2): the world model's error on the final predicted step, start and end
+    reward_on_truth: np.ndarray  # (B, K, 2): the planner's reward reading the true frames instead, start and end (NaN: states)
     chosen: np.ndarray  # (B,)
 
 
@@ -73,31 +77,39 @@ class ProbingPlanner:
                               torch.as_tensor(np.asarray(obs[self.planner.wm_key])), goal, PartTimer())
             _, predicted_ends = model(ends.flatten(1, 2))
         true_ends = true_futures.unflatten(1, (k, m1))[:, :, [0, m1 - 1]].flatten(1, 2)
+        error, on_truth = self._model_error(predicted_ends, true_ends, goal)
         self.decisions.append(Decision(
             predicted=torch.stack(trace.scores, dim=2).numpy(), true=true.unflatten(1, (k, m1)).numpy(),
             moved=(chunks - chunks[:, :, :1]).abs().mean(dim=(-1, -2)).numpy(),
             action_grads=torch.stack(trace.action_grads, dim=2).numpy(),
             future_grads=torch.stack(trace.future_grads, dim=2).numpy(),
-            model_error=self._model_error(predicted_ends, true_ends).unflatten(1, (k, 2)).numpy(),
+            model_error=error.unflatten(1, (k, 2)).numpy(), reward_on_truth=on_truth.unflatten(1, (k, 2)).numpy(),
             chosen=np.asarray(plan.chosen)))
         return plan
 
-    def _model_error(self, predicted: torch.Tensor, true_states: torch.Tensor) -> torch.Tensor:
-        """``(B, N, T', ...)`` predictions, ``(B, N, T, D)`` true states -> ``(B, N)`` error on the last predicted step:
-        the object's vertex distance for state models, the pixel RMSE against the true frame for image models."""
+    def _model_error(self, predicted: torch.Tensor, true_states: torch.Tensor,
+                     goal: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(B, N, T', ...)`` predictions, ``(B, N, T, D)`` true states -> ``(B, N)`` error on the last predicted step
+        (the object's vertex distance for state models, the pixel RMSE against the true frame for image models)
+        and ``(B, N)`` the planner's reward reading that true frame (image models; NaN for state models)."""
         layout = self.task.layout
+        nan = torch.full(predicted.shape[:2], float("nan"))
         if predicted.dim() == 4:  # state futures
             pose = list(layout.state.object_pose)
             vertices = torch.as_tensor(np.asarray(layout.target.vertices), dtype=torch.float32)
-            return registration_distance(predicted[:, :, -1, pose], true_states[:, :, -1, pose], vertices)
+            return registration_distance(predicted[:, :, -1, pose], true_states[:, :, -1, pose], vertices), nan
         frameskip = true_states.shape[2] // predicted.shape[2]
         last = true_states[:, :, predicted.shape[2] * frameskip - 1].numpy()
         frames = np.stack([[self.task.render_state(s) for s in row] for row in last])  # (B, N, S0, S0, C)
         as_frames = getattr(getattr(self.planner.world_model, "dynamics", None), "frames", None)  # stored images -> its frames
         if as_frames is None:
-            return torch.full(predicted.shape[:2], float("nan"))
-        truth = as_frames(torch.from_numpy(frames))
-        return (predicted[:, :, -1].float() - truth.float()).pow(2).flatten(2).mean(dim=-1).sqrt()
+            return nan, nan
+        truth = as_frames(torch.from_numpy(frames)).float()
+        error = (predicted[:, :, -1].float() - truth).pow(2).flatten(2).mean(dim=-1).sqrt()
+        b, n = truth.shape[:2]
+        goals = None if goal is None else goal[:, None].expand(b, n, -1).flatten(0, 1)
+        on_truth = self.planner.reward(truth.flatten(0, 1)[:, None], goals).unflatten(0, (b, n))  # a one-frame future
+        return error, on_truth.float()
 
 
 def probe(planner: Planner, task_name: str, seeds: tuple[int, ...], max_steps: int, batch: int, goal: str = "fixed",
@@ -125,7 +137,9 @@ def summarize(decisions: list[Decision]) -> dict[str, Any]:
         offset += b * k
     executed = np.concatenate(chosen_rows)
     final_dp, final_dt = dp[:, -1], dt[:, -1]
-    error = cat("model_error")  # (N, 2)
+    error, on_truth = cat("model_error"), cat("reward_on_truth")  # (N, 2) each
+    truth_gain = on_truth[:, 1] - on_truth[:, 0]
+    images = bool(np.isfinite(truth_gain).all())
     return {
         "decisions": sum(d.predicted.shape[0] for d in decisions), "candidates": int(pred.shape[0]), "steps": int(pred.shape[1] - 1),
         "per_step": {"predicted_gain_mean": dp.mean(0).tolist(), "true_gain_mean": dt.mean(0).tolist(),
@@ -136,6 +150,9 @@ def summarize(decisions: list[Decision]) -> dict[str, Any]:
                   "share_fooled": float(((final_dp > 1e-6) & (final_dt < -1e-6)).mean()),
                   "gain_correlation": _correlation(final_dp, final_dt),
                   "moved_mean": float(moved[:, -1].mean())},
+        "reward_on_true_frames": None if not images else {
+            "gain_mean": float(truth_gain.mean()), "gain_correlation_with_true": _correlation(truth_gain, final_dt),
+            "share_up": float((truth_gain > 1e-6).mean())},
         "model_error": {"start_mean": float(error[:, 0].mean()), "end_mean": float(error[:, 1].mean()),
                         "start_median": float(np.median(error[:, 0])), "end_median": float(np.median(error[:, 1]))},
         "gradient": {"per_action_first_step": cat("action_grads")[:, 0].mean(0).tolist(),
@@ -149,6 +166,15 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
     if a.std() < 1e-12 or b.std() < 1e-12:
         return None
     return float(np.corrcoef(a, b)[0, 1])
+
+
+def _truth_rows(truth: dict[str, Any] | None) -> list[str]:
+    """The reward's gain read on the true frames (image models): where the predicted-vs-true gap comes from."""
+    if truth is None:
+        return []
+    corr = "n/a" if truth["gain_correlation_with_true"] is None else f"{truth['gain_correlation_with_true']:+.2f}"
+    return [f"| the planner's reward on the true last frames: gain, mean (share up; correlation with the true gain) | "
+            f"{truth['gain_mean']:+.4f} ({truth['share_up']:.0%}; {corr}) |"]
 
 
 def markdown(summary: dict[str, Any], title: str) -> str:
@@ -165,6 +191,7 @@ def markdown(summary: dict[str, Any], title: str) -> str:
              f"| share fooled (predicted up, truly down) | {f['share_fooled']:.0%} |",
              f"| correlation of predicted and true gains | {corr} |",
              f"| mean move of an action (action units) | {f['moved_mean']:.2f} |",
+             *_truth_rows(summary.get("reward_on_true_frames")),
              f"| world-model error on the last predicted step, start -> end (mean; median) | "
              f"{e['start_mean']:.4g} -> {e['end_mean']:.4g}; {e['start_median']:.4g} -> {e['end_median']:.4g} |", "",
              "| step | predicted gain | true gain (mean / median) | move |", "|---|---|---|---|"]
