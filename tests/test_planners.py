@@ -186,6 +186,8 @@ def test_the_ascent_probe_scores_every_iterate_in_the_true_simulator(ckpts, tmp_
     assert 0.0 <= report["final"]["share_fooled"] <= report["final"]["share_predicted_up"] <= 1.0
     assert report["model_error"]["start_mean"] > 0 and len(report["gradient"]["per_action_first_step"]) == 15
     assert report["reward_on_true_frames"] is None  # state futures: the reward already reads true states
+    pick = report["selection"]  # K = 3: what ranking and ascent each deliver over the average proposal
+    assert pick["rank_gain_mean"] <= pick["best_proposal_gain_mean"] and pick["best_proposal_gain_mean"] >= 0.0
     assert "| share fooled" in (tmp_path / "a.md").read_text()
     res = CliRunner().invoke(app, [*args, "--planner", "rank", "--out", str(tmp_path / "b.md")])
     assert res.exit_code != 0 and "takes no gradient steps" in res.output and not (tmp_path / "b.md").exists()

@@ -83,6 +83,7 @@ def test_vision_pipeline_plans_with_frames(tiny_pusht, tmp_path):
     assert report["decisions"] == 1 and 0.0 < report["model_error"]["start_mean"] < 1.0  # pixel RMSE in [0, 1] units
     truth = report["reward_on_true_frames"]  # the learned reward read on the rendered true frames: a finite gain
     assert truth is not None and math.isfinite(truth["gain_mean"]) and 0.0 <= truth["share_up"] <= 1.0
+    assert report["selection"] is None  # one candidate: nothing is picked
     # a visual world model cannot plan for a keypoint policy: one line naming both
     bad = CliRunner().invoke(app, ["eval", str(tiny_pusht["policy"]), "--planner", "rank", "--world-model", str(wm.last),
                                    "--seeds", "100000", "--out", str(tmp_path / "bad")])

@@ -153,12 +153,29 @@ def summarize(decisions: list[Decision]) -> dict[str, Any]:
         "reward_on_true_frames": None if not images else {
             "gain_mean": float(truth_gain.mean()), "gain_correlation_with_true": _correlation(truth_gain, final_dt),
             "share_up": float((truth_gain > 1e-6).mean())},
+        "selection": _selection(decisions),
         "model_error": {"start_mean": float(error[:, 0].mean()), "end_mean": float(error[:, 1].mean()),
                         "start_median": float(np.median(error[:, 0])), "end_median": float(np.median(error[:, 1]))},
         "gradient": {"per_action_first_step": cat("action_grads")[:, 0].mean(0).tolist(),
                      "per_predicted_step_first_step": cat("future_grads")[:, 0].mean(0).tolist(),
                      "action_norm_per_step": cat("action_grads").sum(-1).mean(0).tolist()},
     }
+
+
+def _selection(decisions: list[Decision]) -> dict[str, float] | None:
+    """With K > 1 candidates: the true gain per decision over the average proposal of picking by the predicted
+    score before ascent (GPC-RANK), of the executed ascended chunk (RANK+OPT), and of the truly best proposal."""
+    if decisions[0].predicted.shape[1] < 2:
+        return None
+    pred = np.concatenate([d.predicted for d in decisions])  # (D, K, M+1)
+    true = np.concatenate([d.true for d in decisions])
+    chosen, rows = np.concatenate([d.chosen for d in decisions]), np.arange(len(pred))
+    mean = true[:, :, 0].mean(axis=1)
+    ranked = pred[:, :, 0].argmax(axis=1)
+    return {"rank_gain_mean": float((true[rows, ranked, 0] - mean).mean()),
+            "executed_gain_mean": float((true[rows, chosen, -1] - mean).mean()),
+            "ascent_on_rank_choice_gain_mean": float((true[rows, ranked, -1] - true[rows, ranked, 0]).mean()),
+            "best_proposal_gain_mean": float((true[:, :, 0].max(axis=1) - mean).mean())}
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -177,6 +194,16 @@ def _truth_rows(truth: dict[str, Any] | None) -> list[str]:
             f"{truth['gain_mean']:+.4f} ({truth['share_up']:.0%}; {corr}) |"]
 
 
+def _selection_rows(selection: dict[str, float] | None) -> list[str]:
+    """K > 1: what picking does, as true gains per decision over the average proposal."""
+    if selection is None:
+        return []
+    return [f"| true gain over the average proposal: picked by predicted score before ascent (RANK) / executed after "
+            f"ascent / truly best proposal | {selection['rank_gain_mean']:+.4f} / {selection['executed_gain_mean']:+.4f} / "
+            f"{selection['best_proposal_gain_mean']:+.4f} |",
+            f"| ascent from RANK's pick, true gain | {selection['ascent_on_rank_choice_gain_mean']:+.4f} |"]
+
+
 def markdown(summary: dict[str, Any], title: str) -> str:
     """The probe's verdict as a short Markdown report."""
     f, e, s = summary["final"], summary["model_error"], summary["per_step"]
@@ -192,6 +219,7 @@ def markdown(summary: dict[str, Any], title: str) -> str:
              f"| correlation of predicted and true gains | {corr} |",
              f"| mean move of an action (action units) | {f['moved_mean']:.2f} |",
              *_truth_rows(summary.get("reward_on_true_frames")),
+             *_selection_rows(summary.get("selection")),
              f"| world-model error on the last predicted step, start -> end (mean; median) | "
              f"{e['start_mean']:.4g} -> {e['end_mean']:.4g}; {e['start_median']:.4g} -> {e['end_median']:.4g} |", "",
              "| step | predicted gain | true gain (mean / median) | move |", "|---|---|---|---|"]
