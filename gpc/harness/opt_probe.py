@@ -77,7 +77,7 @@ class ProbingPlanner:
                               torch.as_tensor(np.asarray(obs[self.planner.wm_key])), goal, PartTimer())
             _, predicted_ends = model(ends.flatten(1, 2))
         true_ends = true_futures.unflatten(1, (k, m1))[:, :, [0, m1 - 1]].flatten(1, 2)
-        error, on_truth = self._model_error(predicted_ends, true_ends, goal)
+        error, on_truth = self._against_truth(predicted_ends, true_ends, goal)
         self.decisions.append(Decision(
             predicted=torch.stack(trace.scores, dim=2).numpy(), true=true.unflatten(1, (k, m1)).numpy(),
             moved=(chunks - chunks[:, :, :1]).abs().mean(dim=(-1, -2)).numpy(),
@@ -87,7 +87,7 @@ class ProbingPlanner:
             chosen=np.asarray(plan.chosen)))
         return plan
 
-    def _model_error(self, predicted: torch.Tensor, true_states: torch.Tensor,
+    def _against_truth(self, predicted: torch.Tensor, true_states: torch.Tensor,
                      goal: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(B, N, T', ...)`` predictions, ``(B, N, T, D)`` true states -> ``(B, N)`` error on the last predicted step
         (the object's vertex distance for state models, the pixel RMSE against the true frame for image models)
