@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from gpc.cli.collect_cmd import register as register_collect
 from gpc.cli.errors import OneLineErrors
 from gpc.cli.eval_cmd import eval_app
 from gpc.cli.eval_cmd import register as register_eval
@@ -24,51 +25,12 @@ app = typer.Typer(
 data_app = typer.Typer(help="Inspect episode stores.", no_args_is_help=True)
 app.add_typer(data_app, name="data")
 app.add_typer(train_app, name="train")
+register_collect(app)
 register_eval(app)
 train_app.command("world-model")(train_world_model)
 eval_app.command("world-model")(eval_world_model)
 train_app.command("reward")(train_reward)
 eval_app.command("reward")(eval_reward)
-
-
-@app.command()
-def collect(
-    out: Path = typer.Option(..., "--out", "-o", help="Zarr store to create or resume (a directory)."),
-    explore: bool = typer.Option(False, "--explore", help="Collect contact-rich exploration data instead of expert demonstrations."),
-    episodes: int = typer.Option(100, "--episodes", "-n", min=1, help="Number of episodes (seeds SEED .. SEED+N-1)."),
-    seed: int = typer.Option(0, "--seed", min=0, help="First environment seed; keep clear of the test seeds (100000+)."),
-    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Parallel worker processes; the store is identical for any count."),
-    task: str = typer.Option(DEFAULT_TASK, "--task", help="Task to collect from."),
-    goal: str = typer.Option("fixed", "--goal", help="fixed: the standard goal; random: a per-seed goal (GPC's variant)."),
-    images: bool = typer.Option(True, "--images/--no-images", help="Store the camera's frames (key img)."),
-    max_steps: int | None = typer.Option(None, "--max-steps", min=1, help="Steps per episode at most (default: the task's episode length)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store instead of resuming it."),
-) -> None:
-    """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    from gpc.harness.collection import CollectJob
-    from gpc.harness.collection import collect as run_collect
-
-    job = CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes,
-                     seed=seed, workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite)
-    bar = Progress(TextColumn("[bold]collect[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("mean score {task.fields[score]:.3f}"), TimeRemainingColumn())
-    scores: list[float] = []
-
-    def start(already: int) -> None:  # called once the store is open, so errors come before any bar
-        bar.add_task(job.kind, total=episodes, completed=already, score=float("nan"))
-        bar.start()
-
-    def tick(stats: dict) -> None:
-        scores.append(stats["score"])
-        bar.update(bar.task_ids[0], advance=1, score=sum(scores) / len(scores))
-
-    try:
-        summary = run_collect(job, on_start=start, on_episode=tick)
-    finally:
-        bar.stop()
-    typer.echo(json.dumps(summary.__dict__, indent=2))
 
 
 @data_app.command("info")

@@ -1,8 +1,11 @@
-"""Collection: scripted episodes from a task, appended whole to an episode store.
+"""Collection: episodes of a task's scripted collectors, or of a policy or planner in closed loop, appended
+whole to an episode store.
 
 Episodes run in worker processes and are written by this process in seed order, so a
 store's content depends only on the command, never on ``--workers``. Re-running the
-same command resumes: seeds already in the store are skipped.
+same command resumes: seeds already in the store are skipped. Closed-loop episodes
+(``gpc record``) are the very episodes ``gpc eval`` scores for those seeds: the data a
+world model needs where the planner drives the scene, not only where the expert does.
 """
 
 from __future__ import annotations
@@ -25,10 +28,13 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.datasets.store import EpisodeStore
 from gpc.harness import interrupts
+from gpc.harness.evaluation import EvalConfig, map_groups
 from gpc.harness.files import check_out, write_atomic
 from gpc.harness.stores import check_stores
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import COLLECTORS, Task
+
+CLOSED_LOOP = "closed-loop"
 
 
 @dataclass(frozen=True)
@@ -37,7 +43,7 @@ class CollectJob:
 
     out: Path
     task: str  # a registered task's name (gpc.tasks.get_task)
-    kind: str = "expert"  # expert | explore
+    kind: str = "expert"  # expert | explore | closed-loop (``controller``'s episodes)
     episodes: int = 100
     seed: int = 0
     workers: int = 1
@@ -45,15 +51,20 @@ class CollectJob:
     images: bool = True
     max_steps: int | None = None  # steps per episode at most (None: the task's episode length)
     overwrite: bool = False
+    controller: Any = None  # closed-loop: a picklable recipe (``gpc.harness.recipes.PlannerRecipe``)
+    batch: int = 10  # closed-loop: episodes stepped in lockstep per controller call
+    threads: int = 1  # closed-loop: torch threads per process (as in ``gpc eval``, the episodes depend on it)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)  # raises for an unknown task
         task.check_goal(self.goal)
         if self.max_steps is None:
             object.__setattr__(self, "max_steps", task.max_episode_steps)
-        if self.kind not in COLLECTORS:
+        if self.kind not in (*COLLECTORS, CLOSED_LOOP):
             raise ValueError(f"collector {self.kind!r}: use one of {', '.join(COLLECTORS)}")
-        for name in ("episodes", "workers", "max_steps"):
+        if (self.kind == CLOSED_LOOP) != (self.controller is not None):
+            raise ValueError(f"collector {self.kind!r}: a controller is recorded by, and only by, the {CLOSED_LOOP} collector")
+        for name in ("episodes", "workers", "max_steps", "batch", "threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
         if self.seed < 0:
@@ -72,10 +83,16 @@ class CollectJob:
     def provenance(self) -> dict:
         """What a store records about how it was made; resuming requires it to match."""
         task = get_task(self.task)
+        if self.kind == CLOSED_LOOP:
+            c = self.controller
+            collector = {**c.summary(), "sampling": asdict(c.sampling), "reward_checkpoint": c.reward.checkpoint,
+                         "reward_aggregate": c.reward.aggregate, "batch": self.batch, "threads": self.threads, "max_steps": self.steps}
+        else:
+            collector = task.collector_params(self.kind, self.steps)
         return {
             "task": self.task,
             "env": task.env_params(self.goal, self.steps),
-            "collector": {"kind": self.kind, **task.collector_params(self.kind, self.steps)},
+            "collector": {"kind": self.kind, **collector},
             "keys": task.record_keys(self.images, self.goal),
         }
 
@@ -224,9 +241,10 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
         if on_start:
             on_start(len(job.seeds) - len(todo))
         args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
+        episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers)
         stats: list[dict] = []
         try:
-            for data, st in _results(args, job.workers):
+            for data, st in episodes:
                 try:
                     store.append_episode(data, seed=st["seed"], score=st["score"])
                 except OSError as exc:  # a full disk: the episode being written is not committed
@@ -266,6 +284,21 @@ def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], 
         return
     with mp.get_context("spawn").Pool(min(workers, len(args)), initializer=_init_worker, initargs=(user_tasks(),)) as pool:
         yield from interrupts.polled(pool, pool.imap(_run_one, args, chunksize=1))
+
+
+def _closed_loop(job: CollectJob, todo: list[int]) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+    """The controller's episodes of the ``todo`` seeds, in seed order. Lockstep groups are cut from all the job's
+    seeds, as ``gpc eval`` cuts them, so a resumed job runs each episode exactly as an uninterrupted one would."""
+    config = EvalConfig(seeds=tuple(job.seeds), task=job.task, goal=job.goal, max_steps=job.steps, batch=job.batch,
+                        workers=job.workers, threads=job.threads, record=True)
+    wanted = set(todo)
+    jobs = [(group, config) for group in config.groups() if wanted & set(group)]
+    for group in map_groups(job.controller, jobs, config):
+        for row, data in zip(group["episodes"], group["recordings"]):
+            if row["seed"] in wanted:
+                contacts = float(np.mean(data["n_contacts"] > 0)) if "n_contacts" in data else 0.0
+                yield data, {"seed": row["seed"], "steps": row["steps"], "score": row["score"],
+                             "success": row["success"], "contact_fraction": contacts}
 
 
 def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "fixed", max_steps: int | None = None,

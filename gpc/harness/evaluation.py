@@ -28,9 +28,7 @@ from gpc.harness import interrupts
 from gpc.harness.files import write_atomic
 from gpc.models.planning.protocols import Controller, Plan
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import Task
-
-IMAGE_KEY = "img"
+from gpc.tasks.base import ACTION_KEY, IMAGE_KEY, Task
 
 
 @dataclass(frozen=True)
@@ -48,6 +46,7 @@ class EvalConfig:
     video_dir: str | None = None
     videos: int = 0  # MP4s for the first N seeds (with the planned chunk drawn)
     video_size: int = 384
+    record: bool = False  # keep every episode's steps in the task's store layout (`gpc record`)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)
@@ -78,7 +77,7 @@ def episode_generator(sampling_seed: int, env_seed: int) -> torch.Generator:
 def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) -> dict[str, Any]:
     """Run one lockstep group to the end: per-seed results and the group's call timings."""
     task = get_task(config.task)
-    images, sim = IMAGE_KEY in controller.obs_keys, task.sim_key in controller.obs_keys
+    images, sim = IMAGE_KEY in controller.obs_keys or config.record, task.sim_key in controller.obs_keys
     envs = [task.make_env(config.goal) for _ in seeds]
     for env, seed in zip(envs, seeds):
         env.reset(seed=seed)
@@ -97,6 +96,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
     sizes: list[int] = []  # episodes planned for in each call
     parts: dict[str, float] = {}
     films: dict[int, list[np.ndarray]] = {i: [] for i, s in enumerate(seeds) if config.videos and s in config.seeds[: config.videos]}
+    recorders = [_Recorder(task, config.goal) for _ in seeds] if config.record else []
     live = list(range(len(seeds)))
     while live:
         obs = {k: np.stack([np.stack([h[k] for h in hist[i]]) for i in live]) for k in hist[0][0]}
@@ -112,7 +112,11 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
             for j, action in enumerate(plan.actions[r]):
                 if i in films:
                     films[i].extend(_film_frames(task, env, plan, r, j, config.video_size))
+                if recorders:
+                    recorders[i].add(hist[i][-1], action)
                 _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
+                if recorders:
+                    recorders[i].after(info)
                 row = rows[i]
                 row["steps"] += 1
                 row["score"] = max(row["score"], float(reward))
@@ -135,7 +139,30 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
         write_mp4(film, Path(config.video_dir) / f"seed{seeds[i]}.mp4")
     stats = _counts(controller.stats(), stats_before) if hasattr(controller, "stats") else {}
     return {"episodes": rows, "calls": latencies, "call_sizes": sizes, "group_size": len(seeds), "parts": parts, "stats": stats,
-            "n_action_steps": getattr(controller, "n_action_steps", None)}
+            "n_action_steps": getattr(controller, "n_action_steps", None),
+            **({"recordings": [r.arrays() for r in recorders]} if recorders else {})}
+
+
+class _Recorder:
+    """One closed-loop episode in the task's store layout, as its scripted collectors record one: each step holds
+    the observation before acting and the action; a recorded key that is not observed (Push-T's ``n_contacts``) is
+    the step information of the step that led to the observation (0 at the reset)."""
+
+    def __init__(self, task: Task, goal: str) -> None:
+        self.keys = task.record_keys(True, goal)
+        self.rows: dict[str, list[np.ndarray]] = {k: [] for k in self.keys}
+        self.info: dict[str, Any] = {}
+
+    def add(self, obs: dict[str, np.ndarray], action: np.ndarray) -> None:
+        for key in self.keys:
+            value = action if key == ACTION_KEY else obs[key] if key in obs else [self.info.get(key, 0)]
+            self.rows[key].append(np.asarray(value))
+
+    def after(self, info: dict[str, Any]) -> None:
+        self.info = info
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.stack(v).astype(np.uint8 if k == IMAGE_KEY else np.float32) for k, v in self.rows.items()}
 
 
 def _film_frames(task: Task, env: Any, plan: Plan, i: int, j: int, size: int) -> list[np.ndarray]:
@@ -204,7 +231,7 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     jobs = [(g, config) for g in config.groups() if tuple(int(s) for s in g) not in have]
     groups: list[dict[str, Any]] = list(finished)
     if jobs:
-        for group in _map(factory, jobs, config):
+        for group in map_groups(factory, jobs, config):
             groups.append(group)
             if on_group:
                 on_group(group)
@@ -216,7 +243,8 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     return result
 
 
-def _map(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
+def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
+    """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes."""
     if config.workers == 1 or len(jobs) == 1:
         previous = torch.get_num_threads()
         _init_worker(factory, config.threads)
