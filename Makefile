@@ -16,8 +16,9 @@ EXPLORE ?= 1
 # GOAL=random: GPC's variant, a goal pose drawn per seed: the policy is trained on expert
 # demonstrations towards random goals and reads the goal; the world model (goal-agnostic) is shared.
 GOAL ?= fixed
-# VWM_PLAN: the visual world model the vision planners use, student (its one-step distillation, the default) or
-# teacher (the trained model's 3-step sampler); each has its own results.
+# VWM_PLAN: the visual world model the vision planners use, student (its one-step distillation, the default),
+# teacher (the trained model's 3-step sampler) or onpolicy (the teacher fine-tuned on GPC-OPT's own recorded episodes
+# as well, then distilled again: the model trained where the planner goes); each has its own results.
 VWM_PLAN ?= student
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
@@ -78,6 +79,9 @@ ifeq ($(PROFILE),smoke)
   ARGS.vopt-M2 := --planner opt -M 2
   VCEILING := vgt-sim-K3
   ARGS.vgt-sim-K3 := --planner gt-sim -K 3
+  VRECORD := vopt-M2
+  VRECORD_SEEDS := --seed 70000 --episodes 2 --max-steps 16 --batch 2
+  VWM_ONPOLICY := --profile tiny --max-steps 4
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
@@ -105,6 +109,9 @@ else ifeq ($(PROFILE),paper)
   VEVAL := --seeds 100000:100100 --batch 50
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
+  VRECORD := vopt-M25
+  VRECORD_SEEDS := --seed 70000 --episodes 200 --batch 50
+  VWM_ONPOLICY := --profile paper --max-steps 5000
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
@@ -134,6 +141,10 @@ else ifeq ($(PROFILE),cpu)
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
+  # VWM_PLAN=onpolicy: GPC-OPT's own episodes on training seeds (about 35 min), 2,000 fine-tuning steps (about 10 min).
+  VRECORD := vopt-M25
+  VRECORD_SEEDS := --seed 70000 --episodes 50 --batch 10
+  VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-mixed --val-every 1000
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
@@ -255,8 +266,12 @@ else ifeq ($(VWM_PLAN),teacher)
   VPLAN_DONE := $(VWM_RUN)-phase2.done
   VPLAN_CKPT := $(VWM_CKPT)
   VRESULTS := $(RESULTS)-vision-teacher
+else ifeq ($(VWM_PLAN),onpolicy)
+  VPLAN_DONE := $(VWM_RUN)-onpolicy-1step.done
+  VPLAN_CKPT := $(VWM_RUN)-onpolicy-1step/checkpoints/last.ckpt
+  VRESULTS := $(RESULTS)-vision-onpolicy
 else
-  $(error VWM_PLAN=$(VWM_PLAN): use student or teacher)
+  $(error VWM_PLAN=$(VWM_PLAN): use student, teacher or onpolicy)
 endif
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
 VTABLE := $(if $(filter cpu1student,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
@@ -289,6 +304,28 @@ $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	if [ -f $(REWARD_CKPT) ]; then resume=--resume; fi; \
 	$(BIN)/gpc train reward --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr $(VREWARD) --seed 0 \
 	  --out $(RUN_DIR)/reward $$resume
+	touch $@
+
+# VWM_PLAN=onpolicy: the student plans with GPC-OPT on training seeds (`gpc record`: the chunks its ascent executes,
+# with their true outcomes); the teacher is fine-tuned on those episodes beside its own data, then distilled again.
+VRECORDED := $(VWM_RUN)-opt-episodes.zarr
+VONPOLICY_CKPT := $(VWM_RUN)-onpolicy/checkpoints/last.ckpt
+$(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RUN_DIR)/reward.done
+	$(BIN)/gpc record $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VSTUDENT_CKPT) --reward learned \
+	  --reward-checkpoint $(REWARD_CKPT) $(VRECORD_SEEDS) --workers $(WORKERS) --out $(VRECORDED)
+	touch $@
+
+$(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done
+	if [ -f $(VONPOLICY_CKPT) ]; then resume=--resume; else resume="--init $(VWM_CKPT)"; fi; \
+	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) --dataset $(VRECORDED) $(VWM_ONPOLICY) --seed 0 \
+	  --out $(VWM_RUN)-onpolicy $$resume
+	touch $@
+
+$(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
+	if [ -f $(VPLAN_CKPT) ]; then resume=--resume; fi; \
+	$(BIN)/gpc train world-model --distill $(VONPOLICY_CKPT) --sampler-steps 1 $(WM_DATA) --dataset $(VRECORDED) $(VDISTILL) \
+	  --seed 0 --out $(VWM_RUN)-onpolicy-1step $$resume
+	$(BIN)/gpc eval world-model $(VPLAN_CKPT) $(WM_DATA) --dataset $(VRECORDED)
 	touch $@
 
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from gpc.datasets.store import EpisodeStore
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -76,6 +78,20 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     teacher = subprocess.run(vargs + ["VWM_PLAN=teacher", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert teacher.returncode == 0 and "--world-model " + str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") in teacher.stdout
     assert "wm-visual-1step" not in teacher.stdout and "results-vision-teacher" in teacher.stdout
+    # VWM_PLAN=onpolicy: GPC-OPT's own episodes recorded, the teacher fine-tuned on them too, then distilled again
+    onpolicy = subprocess.run(vargs[:2] + [str(runs / "wm-visual-onpolicy-1step.done")] + vargs[3:] + ["VWM_PLAN=onpolicy"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert onpolicy.returncode == 0, onpolicy.stdout[-2000:] + onpolicy.stderr[-2000:]
+    recorded = runs / "wm-visual-opt-episodes.zarr"
+    assert EpisodeStore.open(recorded).attrs["collector"]["world_model"] == str(
+        runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")  # recorded with the student the planners use
+    tuned = json.loads((runs / "wm-visual-onpolicy" / "run.json").read_text())
+    assert tuned["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") and str(recorded) in tuned["datasets"]
+    assert json.loads((runs / "wm-visual-onpolicy-1step" / "run.json").read_text())["init"] == str(
+        runs / "wm-visual-onpolicy" / "checkpoints" / "last.ckpt")
+    table = subprocess.run(vargs + ["VWM_PLAN=onpolicy", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert "--world-model " + str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt") in table.stdout
+    assert "results-vision-onpolicy" in table.stdout
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
     stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
