@@ -80,7 +80,7 @@ ifeq ($(PROFILE),smoke)
   VCEILING := vgt-sim-K3
   ARGS.vgt-sim-K3 := --planner gt-sim -K 3
   VRECORD := vopt-M2
-  VRECORD_SEEDS := --seed 70000 --episodes 2 --max-steps 16 --batch 2
+  VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 2 --max-steps 16 --batch 2
   VWM_ONPOLICY := --profile tiny --max-steps 4
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
@@ -110,7 +110,7 @@ else ifeq ($(PROFILE),paper)
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
   VRECORD := vopt-M25
-  VRECORD_SEEDS := --seed 70000 --episodes 200 --batch 50
+  VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 200 --batch 50
   VWM_ONPOLICY := --profile paper --max-steps 5000
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
@@ -141,9 +141,9 @@ else ifeq ($(PROFILE),cpu)
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
-  # VWM_PLAN=onpolicy: GPC-OPT's own episodes on training seeds (about 35 min), 2,000 fine-tuning steps (about 10 min).
+  # VWM_PLAN=onpolicy: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
   VRECORD := vopt-M25
-  VRECORD_SEEDS := --seed 70000 --episodes 50 --batch 10
+  VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 50 --batch 10
   VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-mixed --val-every 1000
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
@@ -306,13 +306,14 @@ $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	  --out $(RUN_DIR)/reward $$resume
 	touch $@
 
-# VWM_PLAN=onpolicy: the student plans with GPC-OPT on training seeds (`gpc record`: the chunks its ascent executes,
-# with their true outcomes); the teacher is fine-tuned on those episodes beside its own data, then distilled again.
+# VWM_PLAN=onpolicy: the student plans with GPC-OPT on training seeds, executing each ascended chunk whole (`gpc record`:
+# every action the reward judged, with its true outcome); the teacher is fine-tuned on those episodes beside its own
+# data, then distilled again.
 VRECORDED := $(VWM_RUN)-opt-episodes.zarr
 VONPOLICY_CKPT := $(VWM_RUN)-onpolicy/checkpoints/last.ckpt
 $(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RUN_DIR)/reward.done
 	$(BIN)/gpc record $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VSTUDENT_CKPT) --reward learned \
-	  --reward-checkpoint $(REWARD_CKPT) $(VRECORD_SEEDS) --workers $(WORKERS) --out $(VRECORDED)
+	  --reward-checkpoint $(REWARD_CKPT) $(VRECORD_ARGS) --workers $(WORKERS) --out $(VRECORDED)
 	touch $@
 
 $(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done

@@ -31,6 +31,7 @@ VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm
 VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
 Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+ActionSteps = Annotated[int | None, typer.Option("--action-steps", min=1, help="Planners: actions executed per decision (default: the policy's n_action_steps; at most the chunk the planner scores).")]
 PolicyFormat = Annotated[str | None, typer.Option("--policy-format", help="gpc, lerobot or diffusion_policy (default: detected).")]
 PolicyTask = Annotated[str | None, typer.Option("--task", help="Task a LeRobot or Diffusion Policy checkpoint acts in (default: pusht; a gpc checkpoint names its own).")]
 Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
@@ -47,6 +48,7 @@ PLANNING_OPTIONS = (
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
     ("spacing", Spacing, None), ("policy_format", PolicyFormat, None), ("task", PolicyTask, None),
+    ("action_steps", ActionSteps, None),
 )
 with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
@@ -69,7 +71,8 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
     return make_recipe(checkpoint, planner, world_model=o["world_model"], k=o["k"], m=o["m"], lr=o["lr"], ascent=ascent,
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,
-                       keep_futures=keep_futures, task=o["task"], policy_format=o["policy_format"])
+                       keep_futures=keep_futures, task=o["task"], policy_format=o["policy_format"],
+                       action_steps=o["action_steps"])
 
 
 @eval_app.command("run")

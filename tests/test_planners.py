@@ -86,6 +86,18 @@ def test_every_planner_returns_valid_chunks(ckpts, kind, k, m):
     assert set(plan.seconds) >= {"world_model", "reward"}
 
 
+def test_a_planner_may_execute_its_whole_chunk(ckpts):
+    """``action_steps``: the actions run per decision, the policy's n_action_steps unless given, at most the chunk."""
+    seeds = (100000, 100001)
+    one = {"kind": "opt", "num_proposals": 1, "opt_steps": 2}
+    default, whole = planner(ckpts, **one), planner(ckpts, **one, action_steps=15)
+    assert default.n_action_steps == 8 and whole.n_action_steps == whole.horizon == 15
+    plan = whole.plan(histories(seeds), gens(seeds))
+    np.testing.assert_array_equal(plan.actions, plan.chunk)
+    with pytest.raises(ValueError, match="--action-steps 16: must lie in 1..15"):
+        planner(ckpts, **one, action_steps=16)
+
+
 def test_rank_with_one_proposal_is_behaviour_cloning(ckpts):
     seeds = (100000, 100001, 100002)
     obs = histories(seeds)
@@ -273,6 +285,8 @@ def test_compare_tells_apart_runs_of_one_controller():
     (["--planner", "rank", "--world-model", "POLICY"], "is a 'policy' checkpoint, expected a 'world_model'"),
     (["--planner", "rank", "--world-model", "WM", "--keep-best"], "--keep-best apply to opt, rank-opt, grad, not --planner rank"),
     (["--trust-region", "5"], "not --planner bc"),
+    (["--action-steps", "4"], "--action-steps apply to a --planner (bc is the policy alone)"),
+    (["--planner", "rank", "--world-model", "WM", "--action-steps", "0"], "Invalid value for '--action-steps'"),
     (["--planner", "opt", "--world-model", "WM", "--trust-region", "-1"], "--trust-region -1.0: must be a finite number >= 0"),
     (["--planner", "opt", "--world-model", "WM", "--lr-decay", "linear"], "--lr-decay 'linear': use one of constant, cosine"),
 ])

@@ -69,6 +69,15 @@ def test_record_stores_the_episodes_eval_scores(tiny_pusht, tmp_path):
     assert res.exit_code != 0 and "holds data of another kind (collector differ)" in res.output
     assert "Traceback" not in res.output and EpisodeStore.open(store_path).n_episodes == 3
 
+    # a planner may execute its whole chunk (the true outcome of every action its reward judged), not past it
+    res = runner.invoke(app, ["record", *_opt(tiny_pusht, "--out", str(tmp_path / "whole.zarr"), "--episodes", "1",
+                                              "--seed", "60000", "--action-steps", "15")])
+    assert res.exit_code == 0, res.output
+    assert EpisodeStore.open(tmp_path / "whole.zarr").attrs["collector"]["planner"]["action_steps"] == 15
+    assert "action_steps" not in store.attrs["collector"]["planner"]  # the policy's, recorded as before the option
+    res = runner.invoke(app, ["record", *_opt(tiny_pusht, "--out", str(tmp_path / "past.zarr"), "--action-steps", "16")])
+    assert res.exit_code == 2 and "--action-steps 16: must lie in 1..15" in res.output and not (tmp_path / "past.zarr").exists()
+
     # and a world model trains on them beside the expert's
     wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT).config, [tiny_pusht["store"], store_path],
                RunConfig(run_dir=tmp_path / "wm", max_steps=2, batch_size=8, progress=False, accelerator="cpu"))

@@ -124,14 +124,17 @@ class PlannerRecipe:
         if self.policy_format not in (None, "gpc"):
             out["policy_format"] = self.policy_format
         if self.planner is not None:
-            out.update(planner=dataclasses.asdict(self.planner), world_model=self.world_model, reward=self.reward.kind)
+            planner = dataclasses.asdict(self.planner)
+            if planner["action_steps"] is None:  # the policy's: recorded as before the option existed (results resume)
+                del planner["action_steps"]
+            out.update(planner=planner, world_model=self.world_model, reward=self.reward.kind)
         return out
 
 
 def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
                 m: int | None = None, lr: float = 2.0, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
                 sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
-                task: str | None = None, policy_format: str | None = None) -> PlannerRecipe:
+                task: str | None = None, policy_format: str | None = None, action_steps: int | None = None) -> PlannerRecipe:
     """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
@@ -161,8 +164,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     if {key: value for key, value in (ascent or {}).items() if ASCENT_DEFAULTS[key] != value} and planner not in WITH_GRADIENTS:
         raise ValueError(f"--lr-decay, --trust-region and --keep-best apply to {', '.join(WITH_GRADIENTS)}, not --planner {planner}")
     if planner == BC:
-        if world_model or k or m:
-            raise ValueError("--world-model, --K and --M apply to a --planner (bc is the policy alone)")
+        if world_model or k or m or action_steps:
+            raise ValueError("--world-model, --K, --M and --action-steps apply to a --planner (bc is the policy alone)")
         return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format)
     kind = "rank" if planner == GT_SIM else planner
     if planner == GT_SIM:
@@ -172,7 +175,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     box = chosen.layout.action
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
                            opt_steps=m if m is not None else DEFAULT_STEPS.get(kind, 30), lr=lr,
-                           action_low=box.low, action_high=box.high, keep_futures=keep_futures, **(ascent or {}))
+                           action_low=box.low, action_high=box.high, keep_futures=keep_futures, action_steps=action_steps,
+                           **(ascent or {}))
 
     recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format)
     recipe()  # build it once here: a mismatched world model or reward fails now, in one line

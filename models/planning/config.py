@@ -46,10 +46,15 @@ class PlannerConfig:
     action_low: float | None = None  # lower bound of every action entry (the task's)
     action_high: float | None = None  # upper bound of every action entry (the task's)
     keep_futures: bool = False  # return every candidate's predicted future (for videos; memory grows with K)
+    # Actions executed per decision (None: the policy's n_action_steps); the whole chunk, e.g., to record the true
+    # outcome of every action the reward judged (`gpc record`).
+    action_steps: int | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in PLANNERS:
             raise ValueError(f"--planner {self.kind!r}: use one of {', '.join(PLANNERS)}")
+        if self.action_steps is not None and self.action_steps < 1:
+            raise ValueError(f"--action-steps {self.action_steps}: must be at least 1")
         if not 1 <= self.num_proposals <= MAX_PROPOSALS:
             raise ValueError(f"--K {self.num_proposals}: must lie in 1..{MAX_PROPOSALS}")
         if self.kind == "opt" and self.num_proposals != 1:

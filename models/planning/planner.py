@@ -49,17 +49,18 @@ class Planner:
             pc = policy.config
             self.now = pc.n_obs_steps - 1  # index of the current step in a policy chunk
             self.horizon = pc.horizon - self.now
-            self.n_action_steps = pc.n_action_steps
+            self.n_action_steps = config.action_steps or pc.n_action_steps
             self.obs_keys = tuple(dict.fromkeys(policy.obs_keys + (self.wm_key,)))
             self.n_obs_steps = max(pc.n_obs_steps, world_model.n_obs_steps)
             self.action_dim = pc.action_dim
         else:
             if horizon is None or n_action_steps is None or action_dim is None:
                 raise ValueError("a planner without a policy needs horizon, n_action_steps and action_dim")
-            self.now, self.horizon, self.n_action_steps, self.action_dim = 0, horizon, n_action_steps, action_dim
+            self.now, self.horizon, self.action_dim = 0, horizon, action_dim
+            self.n_action_steps = config.action_steps or n_action_steps
             self.obs_keys, self.n_obs_steps = (self.wm_key,), world_model.n_obs_steps
         if not 1 <= self.n_action_steps <= self.horizon:
-            raise ValueError(f"n_action_steps {self.n_action_steps} must lie in 1..{self.horizon}")
+            raise ValueError(f"--action-steps {self.n_action_steps}: must lie in 1..{self.horizon} (the actions a chunk plans)")
         self.episodes: Sequence[int] | None = None
         self.trace: AscentTrace | None = None  # set one to record the next decisions' gradient ascent (diagnostics)
 
