@@ -36,7 +36,7 @@ def collect(
     overwrite: bool = Overwrite,
 ) -> None:
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
-    from gpc.harness.collection import CollectJob  # noqa: F811 (at run time: importing torch only when a command runs)
+    from gpc.harness.collection import CollectJob
 
     _run(CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes, seed=seed,
                     workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite))
