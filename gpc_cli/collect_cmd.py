@@ -51,7 +51,7 @@ def record(
     episodes: int = Episodes,
     seed: int = FirstSeed,
     workers: int = Workers,
-    batch: int = typer.Option(10, "--batch", min=1, help="Episodes stepped in lockstep per controller call (as in gpc eval)."),
+    batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call (gpc eval's default: the same episodes)."),
     threads: Threads = 1,
     goal: Goal = "fixed",
     max_steps: int | None = MaxSteps,

@@ -52,7 +52,7 @@ class CollectJob:
     max_steps: int | None = None  # steps per episode at most (None: the task's episode length)
     overwrite: bool = False
     controller: Any = None  # closed-loop: a picklable recipe (``gpc.harness.recipes.PlannerRecipe``)
-    batch: int = 10  # closed-loop: episodes stepped in lockstep per controller call
+    batch: int = 25  # closed-loop: episodes stepped in lockstep per controller call (gpc eval's default)
     threads: int = 1  # closed-loop: torch threads per process (as in ``gpc eval``, the episodes depend on it)
 
     def __post_init__(self) -> None:
