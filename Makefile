@@ -7,6 +7,8 @@ STAMP := $(VENV)/.gpc-installed
 # The CPU build of torch; a plain `torch` requirement could pull a multi-GB CUDA build.
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
+# make test: pytest processes, one torch thread each (the suite is mostly single-threaded subprocesses).
+TEST_WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
 HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
@@ -169,7 +171,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 test: lint types
-	TORCH_SPEC="$(TORCH_SPEC)" $(BIN)/python -m pytest -q
+	OMP_NUM_THREADS=1 TORCH_SPEC="$(TORCH_SPEC)" $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: lint
 	$(BIN)/python -m pytest -q -m "not slow"

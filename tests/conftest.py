@@ -10,6 +10,13 @@ import pytest
 HUMAN_DATA = Path(os.environ.get("GPC_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "pusht_human_train.zarr"
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Files with a slow (minutes-long) test first: `make test` spreads whole files over two processes, and a long
+    file dealt out last would leave one core idle while it runs alone."""
+    slow = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow)  # stable: the order inside a file is kept
+
+
 @pytest.fixture(scope="session")
 def human_data() -> Path:
     if not HUMAN_DATA.exists():
