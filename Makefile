@@ -84,6 +84,7 @@ ifeq ($(PROFILE),smoke)
   VRECORD := vopt-M2
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 2 --max-steps 16 --batch 2
   VWM_ONPOLICY := --profile tiny --max-steps 4
+  VPROBE_ARGS := --seeds 200000:200002 --max-steps 16 --batch 2
 else ifeq ($(PROFILE),paper)
   EXPERT_EPISODES := 1000
   EXPLORE_EPISODES := 1000
@@ -114,6 +115,7 @@ else ifeq ($(PROFILE),paper)
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 200 --batch 50
   VWM_ONPOLICY := --profile paper --max-steps 5000
+  VPROBE_ARGS := --seeds 200000:200050 --max-steps 300 --batch 50
 else ifeq ($(PROFILE),cpu)
   EXPERT_EPISODES := 200
   EXPLORE_EPISODES := 200
@@ -147,15 +149,17 @@ else ifeq ($(PROFILE),cpu)
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 50 --batch 10
   VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-mixed --val-every 1000
+  VPROBE_ARGS := --seeds 200000:200010 --max-steps 120 --batch 10
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision check-sim clean
+.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision probe-opt-vision check-sim clean
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher)"
+	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
@@ -344,6 +348,16 @@ $(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS) $(VCEILING),$(VR
 
 reproduce-pusht-vision: $(VTABLE)
 	@cat $(VTABLE)
+
+# probe-opt-vision: GPC-OPT (the VRECORD planner) with the chosen visual model on validation seeds, every ascent iterate
+# replayed in the true simulator: predicted against true gain, the share of fooled ascents (docs/results.md).
+VPROBE := $(VRESULTS)/ascent-$(VRECORD).md
+$(VPROBE): $(VDONE)
+	$(BIN)/gpc eval ascent $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VPLAN_CKPT) --reward learned \
+	  --reward-checkpoint $(REWARD_CKPT) $(VPROBE_ARGS) --out $@
+
+probe-opt-vision: $(VPROBE)
+	@cat $(VPROBE)
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

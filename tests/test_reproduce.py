@@ -92,6 +92,11 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     table = subprocess.run(vargs + ["VWM_PLAN=onpolicy", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert "--world-model " + str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt") in table.stdout
     assert "results-vision-onpolicy" in table.stdout
+    probe = subprocess.run(vargs[:2] + ["probe-opt-vision"] + vargs[3:] + ["VWM_PLAN=onpolicy"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    assert probe.returncode == 0, probe.stdout[-2000:] + probe.stderr[-2000:]
+    probed = json.loads((tmp_path / "results-vision-onpolicy" / "ascent-vopt-M2.json").read_text())
+    assert probed["decisions"] > 0 and probed["steps"] == 2  # GPC-OPT M=2 with the on-policy student, replayed
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
     stale = subprocess.run(args + ["-n"], cwd=ROOT, capture_output=True, text=True, timeout=60).stdout
