@@ -23,6 +23,7 @@ M = Annotated[int | None, typer.Option("--M", "-M", help="Gradient steps (opt, r
 Lr = Annotated[float, typer.Option("--lr", help="Adam step size on the actions (px).")]
 LrDecay = Annotated[str, typer.Option("--lr-decay", help="Step size over the M steps: constant or cosine (to 0).")]
 TrustRegion = Annotated[float, typer.Option("--trust-region", help="Gradient planners: how far (px) an action may move from its proposal; 0: no limit.")]
+Knots = Annotated[int, typer.Option("--knots", min=0, help="Gradient planners: ascend N offsets linearly interpolated over the chunk (it bends smoothly); 0: every action.")]
 KeepBest = Annotated[bool, typer.Option("--keep-best", help="Gradient planners: end at each candidate's best-scoring iterate (the proposal included), not the last.")]
 Reward = Annotated[str, typer.Option("--reward", help="registration (state futures), learned (image futures) or vlm.")]
 RewardAggregate = Annotated[str, typer.Option("--reward-aggregate", help="final: the last predicted step; discounted: a discounted sum.")]
@@ -44,7 +45,7 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace the result
 # What every closed-loop command takes to build its controller (received as ``planning``).
 PLANNING_OPTIONS = (
     ("world_model", WorldModel, None), ("k", K, None), ("m", M, None), ("lr", Lr, 2.0), ("lr_decay", LrDecay, "constant"),
-    ("trust_region", TrustRegion, 0.0), ("keep_best", KeepBest, False), ("reward", Reward, "registration"),
+    ("trust_region", TrustRegion, 0.0), ("keep_best", KeepBest, False), ("knots", Knots, 0), ("reward", Reward, "registration"),
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
     ("spacing", Spacing, None), ("policy_format", PolicyFormat, None), ("task", PolicyTask, None),
@@ -67,7 +68,7 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
         if not o["vlm_base_url"] or not o["vlm_model"]:
             raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model (the key comes from $OPENAI_API_KEY)")
         vlm = VLMConfig(base_url=o["vlm_base_url"], model=o["vlm_model"], cache_dir=str(vlm_cache) if vlm_cache else None)
-    ascent = {"lr_decay": o["lr_decay"], "trust_region": o["trust_region"], "keep_best": o["keep_best"]}
+    ascent = {key: o[key] for key in ("lr_decay", "trust_region", "keep_best", "knots")}
     return make_recipe(checkpoint, planner, world_model=o["world_model"], k=o["k"], m=o["m"], lr=o["lr"], ascent=ascent,
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,

@@ -15,7 +15,7 @@ from gpc.harness.collection import CollectJob, collect
 from gpc.harness.comparison import paired_interval, t_quantile
 from gpc.harness.evaluation import episode_generator
 from gpc.harness.recipes import PlannerRecipe, RewardSpec, build_reward
-from gpc.models.planning.ascent import AscentTrace, ascend, step_size
+from gpc.models.planning.ascent import AscentTrace, ascend, interpolation, step_size
 from gpc.models.planning.config import PLANNERS, PlannerConfig
 from gpc.models.planning.loading import load_planner
 from gpc.models.planning.objective import Objective, PartTimer
@@ -163,6 +163,35 @@ def test_ascent_guards_keep_the_chunk_near_its_start_and_never_below_it(ckpts):
     assert weights and all(not w.requires_grad and w.grad is None for w in weights)
 
 
+def test_knotted_ascent_bends_the_proposal_smoothly_and_one_knot_per_action_is_plain_ascent(ckpts):
+    """With n knots the chunk moves by a piecewise-linear offset through n points (bounded by the trust region);
+    with a knot per action it is the plain ascent."""
+    weights = interpolation(16, 4)
+    np.testing.assert_allclose(weights.sum(dim=1).numpy(), 1.0, atol=1e-6)
+    assert torch.equal(interpolation(16, 16), torch.eye(16)) and torch.equal(interpolation(5, 1), torch.ones(5, 1))
+    seeds = (100000, 100001, 100002)
+    obs = histories(seeds)
+    p = planner(ckpts, kind="rank-opt", num_proposals=2, opt_steps=8, lr=5.0)
+    init = p.policy.sample_batch(obs, 2, gens(seeds))[:, :, p.now :]
+    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
+    before, _ = objective(init)
+    trace = AscentTrace()
+    knotted = dataclasses.replace(p.config, knots=3)
+    chunks, scores, _ = ascend(objective, init, knotted, PartTimer(), trace)
+    offsets = chunks - init
+    basis = interpolation(init.shape[2], 3)
+    through_knots = basis @ (torch.linalg.pinv(basis) @ offsets)  # the offset is a blend of 3 knots
+    np.testing.assert_allclose(through_knots.numpy(), offsets.numpy(), atol=1e-4)
+    assert float(offsets.abs().max()) > 1.0 and torch.any(scores > before + 0.1)
+    np.testing.assert_allclose(scores.numpy(), objective(chunks)[0].detach().numpy(), atol=1e-5)
+    assert len(trace.chunks) == 9 and float(trace.action_grads[0].sum()) > 0
+    bounded = ascend(objective, init, dataclasses.replace(knotted, trust_region=2.0), PartTimer())[0]
+    assert float((bounded - init).abs().max()) <= 2.0 + 1e-4
+    plain = ascend(objective, init, p.config, PartTimer())[0]
+    per_action = ascend(objective, init, dataclasses.replace(p.config, knots=init.shape[2]), PartTimer())[0]
+    np.testing.assert_allclose(per_action.numpy(), plain.numpy(), atol=1e-3)
+
+
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
     """The gt-sim planner's predicted rewards equal those the episode's own scene then produces."""
     reward = build_reward(RewardSpec(), PUSHT)
@@ -256,11 +285,12 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
                               "--out", str(tmp_path / "k.md")])
     assert res.exit_code != 0 and "appear in more than one part" in res.output and "Traceback" not in res.output
     guarded = ["--planner", "rank-opt", "-K", "2", "-M", "3", "--world-model", ckpts["wm"], "--lr-decay", "cosine",
-               "--trust-region", "4", "--keep-best"]
+               "--trust-region", "4", "--keep-best", "--knots", "4"]
     res = runner.invoke(app, ["eval", ckpts["policy"], *guarded, *base, "--out", str(tmp_path / "guarded")])
     assert res.exit_code == 0, res.output
     planner_settings = json.loads((tmp_path / "guarded" / "summary.json").read_text())["run"]["controller"]["planner"]
-    assert (planner_settings["lr_decay"], planner_settings["trust_region"], planner_settings["keep_best"]) == ("cosine", 4.0, True)
+    assert (planner_settings["lr_decay"], planner_settings["trust_region"], planner_settings["keep_best"],
+            planner_settings["knots"]) == ("cosine", 4.0, True, 4)
     res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100001",
                               "--max-steps", "16", "--out", str(tmp_path / "plan")])
     assert res.exit_code == 0, res.output
@@ -283,7 +313,8 @@ def test_compare_tells_apart_runs_of_one_controller():
     (["--planner", "rank", "--world-model", "WM", "-K", "0"], "--K 0: must lie in"),
     (["--planner", "zigzag", "--world-model", "WM"], "--planner 'zigzag'"),
     (["--planner", "rank", "--world-model", "POLICY"], "is a 'policy' checkpoint, expected a 'world_model'"),
-    (["--planner", "rank", "--world-model", "WM", "--keep-best"], "--keep-best apply to opt, rank-opt, grad, not --planner rank"),
+    (["--planner", "rank", "--world-model", "WM", "--keep-best"], "--knots apply to opt, rank-opt, grad, not --planner rank"),
+    (["--planner", "opt", "--world-model", "WM", "--knots", "-1"], "Invalid value for '--knots'"),
     (["--trust-region", "5"], "not --planner bc"),
     (["--action-steps", "4"], "--action-steps apply to a --planner (bc is the policy alone)"),
     (["--planner", "rank", "--world-model", "WM", "--action-steps", "0"], "Invalid value for '--action-steps'"),

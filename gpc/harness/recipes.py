@@ -26,7 +26,10 @@ from gpc.tasks.base import Task
 GT_SIM = "gt-sim"
 BC = "bc"
 REWARDS = ("registration", "learned", "vlm")
-ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig) if f.name in ("lr_decay", "trust_region", "keep_best")}
+ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
+                   if f.name in ("lr_decay", "trust_region", "keep_best", "knots")}
+# Settings added after results were first written: left out of a summary at their default, so those results resume.
+LATER_DEFAULTS = {"action_steps": None, "knots": 0}
 DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
 
 
@@ -124,9 +127,8 @@ class PlannerRecipe:
         if self.policy_format not in (None, "gpc"):
             out["policy_format"] = self.policy_format
         if self.planner is not None:
-            planner = dataclasses.asdict(self.planner)
-            if planner["action_steps"] is None:  # the policy's: recorded as before the option existed (results resume)
-                del planner["action_steps"]
+            planner = {key: value for key, value in dataclasses.asdict(self.planner).items()
+                       if key not in LATER_DEFAULTS or value != LATER_DEFAULTS[key]}
             out.update(planner=planner, world_model=self.world_model, reward=self.reward.kind)
         return out
 
@@ -139,7 +141,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
-    ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``).
+    ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``,
+    ``knots``).
     The checkpoints are opened and the controller built once here, so a mismatched world model,
     reward or goal mode fails now, in one line, before any episode runs.
     """
@@ -162,7 +165,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
         if want is not None and tuple(shape) != want:
             raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {chosen.name} observes {want}")
     if {key: value for key, value in (ascent or {}).items() if ASCENT_DEFAULTS[key] != value} and planner not in WITH_GRADIENTS:
-        raise ValueError(f"--lr-decay, --trust-region and --keep-best apply to {', '.join(WITH_GRADIENTS)}, not --planner {planner}")
+        raise ValueError(f"--lr-decay, --trust-region, --keep-best and --knots apply to {', '.join(WITH_GRADIENTS)}, "
+                         f"not --planner {planner}")
     if planner == BC:
         if world_model or k or m or action_steps:
             raise ValueError("--world-model, --K, --M and --action-steps apply to a --planner (bc is the policy alone)")

@@ -10,6 +10,10 @@ depends on its own chunk only). Three guards, each off by default (the paper's p
 - ``keep_best``: each candidate ends at its best-scoring iterate (the start included), so ascent
   never returns a chunk the objective itself scores below the proposal.
 
+``knots`` n > 0 ascends n evenly spaced offsets, linearly interpolated over the chunk, instead of every
+action: the proposal can only bend smoothly, so ascent cannot fool the models with step-to-step wiggles
+no demonstration or exploration chunk has (the trust region then bounds the offsets, hence every action).
+
 ``AscentTrace`` records what each step did (scores, gradients per action and per predicted step,
 how far the chunk moved), for the diagnostics in ``gpc.harness.opt_probe``.
 """
@@ -57,16 +61,27 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
     ``keep_best`` and the action box).
     """
     start = init.detach()
-    actions = start.clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([actions], lr=config.lr)
+    knots = getattr(config, "knots", 0)
+    if knots:  # the offsets ascended, and the chunk they bend the start into
+        basis = interpolation(start.shape[-2], knots).to(start)
+        variable = start.new_zeros(*start.shape[:-2], knots, start.shape[-1]).requires_grad_(True)
+    else:
+        variable = start.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([variable], lr=config.lr)
     low, high = config.action_low, config.action_high
-    if config.trust_region > 0:  # the box around the start, inside the action box
+    if config.trust_region > 0:  # the box around the start (of the offsets: 0), inside the action box
         lo, hi = start - config.trust_region, start + config.trust_region
         if low is not None:
             lo, hi = lo.clamp(low, high), hi.clamp(low, high)
     best: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
     with torch.enable_grad():
         for m in range(config.opt_steps):
+            actions = variable
+            if knots:
+                actions = start + basis @ variable
+                if low is not None:
+                    actions = actions.clamp(low, high)
+                actions.retain_grad()
             scores, futures = objective(actions)
             with timer("optimizer"):
                 if config.keep_best:
@@ -84,19 +99,38 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
                     trace.future_grads.append(_norms(futures.grad, futures, futures.dim() - 3))
                 optimizer.step()
                 with torch.no_grad():
-                    if config.trust_region > 0:
-                        actions.copy_(torch.maximum(torch.minimum(actions, hi), lo))
+                    if knots:
+                        if config.trust_region > 0:  # |offset| <= r at the knots bounds every interpolated action
+                            variable.clamp_(-config.trust_region, config.trust_region)
+                    elif config.trust_region > 0:
+                        variable.copy_(torch.maximum(torch.minimum(variable, hi), lo))
                     elif low is not None:
-                        actions.clamp_(low, high)
+                        variable.clamp_(low, high)
     with torch.no_grad():
-        scores, futures = objective(actions.detach())
-    chunks = actions.detach()
+        chunks = variable.detach()
+        if knots:
+            chunks = start + basis @ chunks
+            chunks = chunks.clamp(low, high) if low is not None else chunks
+        scores, futures = objective(chunks)
     if config.keep_best:
         chunks, scores, futures = _better(best, chunks, scores, futures)
     if trace is not None:
         trace.chunks.append(chunks.cpu().clone())
         trace.scores.append(scores.cpu())
     return chunks, scores, futures
+
+
+def interpolation(steps: int, knots: int) -> torch.Tensor:
+    """``(steps, knots)`` weights: each step a linear blend of its two neighbouring knots (one knot: a shift)."""
+    if knots == 1:
+        return torch.ones(steps, 1)
+    where = torch.linspace(0, knots - 1, steps)
+    left = where.floor().clamp(max=knots - 2).long()
+    right_weight = where - left
+    weights = torch.zeros(steps, knots)
+    weights[torch.arange(steps), left] = 1 - right_weight
+    weights[torch.arange(steps), left + 1] = right_weight
+    return weights
 
 
 def _better(best: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None, chunks: torch.Tensor, scores: torch.Tensor,

@@ -40,6 +40,7 @@ class PlannerConfig:
     lr_decay: str = "constant"  # constant | cosine: the step size over the M steps (gpc.models.planning.ascent)
     trust_region: float = 0.0  # gradient planners: how far (action units) an action may move from its start; 0: anywhere
     keep_best: bool = False  # gradient planners: each candidate ends at its best-scoring iterate, the start included
+    knots: int = 0  # gradient planners: ascend this many offsets interpolated over the chunk; 0: every action
     elite_fraction: float = 0.1  # CEM: share of samples refitted
     temperature: float = 2.0  # MPPI: softmax temperature, in reward units
     init_std: float = 0.25  # CEM/MPPI: initial std as a fraction of the action range
@@ -71,6 +72,8 @@ class PlannerConfig:
             raise ValueError(f"--lr-decay {self.lr_decay!r}: use one of {', '.join(LR_DECAYS)}")
         if not 0 <= self.trust_region < math.inf:
             raise ValueError(f"--trust-region {self.trust_region}: must be a finite number >= 0 (0: no limit)")
+        if not 0 <= self.knots <= 10_000:
+            raise ValueError(f"--knots {self.knots}: must lie in 0..10000 (0: every action is ascended)")
         if self.temperature <= 0:
             raise ValueError(f"temperature {self.temperature}: MPPI's softmax temperature must be > 0")
         if not 0 < self.init_std <= 1:
