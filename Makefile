@@ -175,7 +175,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 test: lint types
-	OMP_NUM_THREADS=1 TORCH_SPEC="$(TORCH_SPEC)" $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	OMP_NUM_THREADS=1 TORCH_SPEC="$(TORCH_SPEC)" $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 test-fast: lint
 	$(BIN)/python -m pytest -q -m "not slow"

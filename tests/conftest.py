@@ -11,8 +11,8 @@ HUMAN_DATA = Path(os.environ.get("GPC_SHARED_DATA", Path(__file__).resolve().par
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Files with a slow (minutes-long) test first: `make test` spreads whole files over two processes, and a long
-    file dealt out last would leave one core idle while it runs alone."""
+    """Files with a slow (minutes-long) test first: `make test` deals whole files out in this order to two processes
+    (`--no-loadscope-reorder`); a long file dealt out last would leave one core idle while it runs alone."""
     slow = {item.path for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.path not in slow)  # stable: the order inside a file is kept
 

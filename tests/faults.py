@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -63,6 +64,16 @@ def wait_for(condition: Callable[[], bool], timeout: float = 120.0) -> None:
             pass
         time.sleep(0.05)
     raise AssertionError("timed out waiting")
+
+
+def wait_deferring(proc: subprocess.Popen, timeout: float = 120.0) -> None:
+    """Until ``proc`` catches SIGTERM (Linux's /proc), i.e. gpc's ``deferred_signals`` is in place: a signal sent
+    earlier would land in the interpreter's start-up instead of the command (a busy machine starts it slowly)."""
+    def catching() -> bool:
+        caught = next(line for line in Path(f"/proc/{proc.pid}/status").read_text().splitlines() if line.startswith("SigCgt:"))
+        return bool(int(caught.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+
+    wait_for(catching, timeout)
 
 
 def digest(path: Path) -> dict[str, str]:

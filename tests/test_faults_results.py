@@ -5,11 +5,10 @@ from __future__ import annotations
 import json
 import shutil
 import signal
-import time
 from pathlib import Path
 
 import pytest
-from faults import digest, finish, gpc, inline, one_line, spawn, wide_store
+from faults import digest, finish, gpc, inline, one_line, spawn, wait_deferring, wide_store
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -91,7 +90,7 @@ def test_damaged_results_and_bad_values_are_one_line(tiny_pusht, tmp_path, case)
 def test_the_rest_of_the_reported_cases_are_one_line_each(tiny_pusht, tmp_path):
     """Ctrl-C of eval-expert; --lr names only --lr; data info of a store laid out otherwise; a summary missing a key."""
     proc = spawn("eval-expert", "--seeds", "100000:100100")
-    time.sleep(6.0)
+    wait_deferring(proc)
     one_line(finish(proc, signal.SIGINT), 130, "stopped by SIGINT", "episodes were scored", alone=False)
     lr = one_line(gpc("eval", str(tiny_pusht["policy"]), "--planner", "rank", "--world-model", str(tiny_pusht["wm"]), "--lr", "-5",
                       "--out", str(tmp_path / "lr")), 2, "--lr -5")

@@ -187,9 +187,13 @@ def test_knotted_ascent_bends_the_proposal_smoothly_and_one_knot_per_action_is_p
     assert len(trace.chunks) == 9 and float(trace.action_grads[0].sum()) > 0
     bounded = ascend(objective, init, dataclasses.replace(knotted, trust_region=2.0), PartTimer())[0]
     assert float((bounded - init).abs().max()) <= 2.0 + 1e-4
-    plain = ascend(objective, init, p.config, PartTimer())[0]
-    per_action = ascend(objective, init, dataclasses.replace(p.config, knots=init.shape[2]), PartTimer())[0]
-    np.testing.assert_allclose(per_action.numpy(), plain.numpy(), atol=1e-3)
+    for lr in (5.0, 200.0):  # 200 px steps: the action box binds, and a knot per action still is the plain ascent
+        plain = ascend(objective, init, dataclasses.replace(p.config, lr=lr), PartTimer())[0]
+        per_action = ascend(objective, init, dataclasses.replace(p.config, lr=lr, knots=init.shape[2]), PartTimer())[0]
+        np.testing.assert_allclose(per_action.numpy(), plain.numpy(), atol=1e-3)
+    wide = ascend(objective, init, dataclasses.replace(knotted, lr=200.0), PartTimer())[0]
+    low, high = p.config.action_low, p.config.action_high
+    assert float(wide.min()) >= low and float(wide.max()) <= high and bool(((wide == low) | (wide == high)).any())
 
 
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
@@ -315,6 +319,7 @@ def test_compare_tells_apart_runs_of_one_controller():
     (["--planner", "rank", "--world-model", "POLICY"], "is a 'policy' checkpoint, expected a 'world_model'"),
     (["--planner", "rank", "--world-model", "WM", "--keep-best"], "--knots apply to opt, rank-opt, grad, not --planner rank"),
     (["--planner", "opt", "--world-model", "WM", "--knots", "-1"], "Invalid value for '--knots'"),
+    (["--planner", "opt", "--world-model", "WM", "--knots", "99"], "--knots 99: at most"),
     (["--trust-region", "5"], "not --planner bc"),
     (["--action-steps", "4"], "--action-steps apply to a --planner (bc is the policy alone)"),
     (["--planner", "rank", "--world-model", "WM", "--action-steps", "0"], "Invalid value for '--action-steps'"),

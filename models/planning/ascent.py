@@ -65,22 +65,17 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
     if knots:  # the offsets ascended, and the chunk they bend the start into
         basis = interpolation(start.shape[-2], knots).to(start)
         variable = start.new_zeros(*start.shape[:-2], knots, start.shape[-1]).requires_grad_(True)
+        lo, hi = _knot_bounds(start, basis, config)
     else:
         variable = start.clone().requires_grad_(True)
+        lo, hi = _action_bounds(start, config)
     optimizer = torch.optim.Adam([variable], lr=config.lr)
-    low, high = config.action_low, config.action_high
-    if config.trust_region > 0:  # the box around the start (of the offsets: 0), inside the action box
-        lo, hi = start - config.trust_region, start + config.trust_region
-        if low is not None:
-            lo, hi = lo.clamp(low, high), hi.clamp(low, high)
     best: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
     with torch.enable_grad():
         for m in range(config.opt_steps):
             actions = variable
             if knots:
                 actions = start + basis @ variable
-                if low is not None:
-                    actions = actions.clamp(low, high)
                 actions.retain_grad()
             scores, futures = objective(actions)
             with timer("optimizer"):
@@ -98,19 +93,15 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
                     trace.action_grads.append(_norms(actions.grad, actions, 1))
                     trace.future_grads.append(_norms(futures.grad, futures, futures.dim() - 3))
                 optimizer.step()
-                with torch.no_grad():
-                    if knots:
-                        if config.trust_region > 0:  # |offset| <= r at the knots bounds every interpolated action
-                            variable.clamp_(-config.trust_region, config.trust_region)
-                    elif config.trust_region > 0:
+                if lo is not None and hi is not None:
+                    with torch.no_grad():  # projected back, so a bound that stops binding lets the entry move again
                         variable.copy_(torch.maximum(torch.minimum(variable, hi), lo))
-                    elif low is not None:
-                        variable.clamp_(low, high)
     with torch.no_grad():
         chunks = variable.detach()
         if knots:
             chunks = start + basis @ chunks
-            chunks = chunks.clamp(low, high) if low is not None else chunks
+            if config.action_low is not None:  # (rounding only: the knots' bounds keep every action in the box)
+                chunks = chunks.clamp(config.action_low, config.action_high)
         scores, futures = objective(chunks)
     if config.keep_best:
         chunks, scores, futures = _better(best, chunks, scores, futures)
@@ -118,6 +109,32 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
         trace.chunks.append(chunks.cpu().clone())
         trace.scores.append(scores.cpu())
     return chunks, scores, futures
+
+
+def _action_bounds(start: torch.Tensor, config: Any) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Per action entry: the action box, narrowed to the trust region around the start (None: unbounded)."""
+    low, high = config.action_low, config.action_high
+    if config.trust_region > 0:
+        lo, hi = start - config.trust_region, start + config.trust_region
+        return (lo.clamp(low, high), hi.clamp(low, high)) if low is not None else (lo, hi)
+    if low is not None:
+        return torch.full_like(start, low), torch.full_like(start, high)
+    return None, None
+
+
+def _knot_bounds(start: torch.Tensor, basis: torch.Tensor, config: Any) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Per knot offset ``(..., knots, A)``: what keeps every action it blends into inside its own bounds.
+
+    An action's offset is a convex blend of its knots', so a knot within every bound of the actions it
+    touches keeps them all inside (with a knot per action: the plain ascent's bounds exactly).
+    """
+    lo, hi = _action_bounds(start, config)
+    if lo is None or hi is None:
+        return None, None
+    touches = (basis > 0).T[..., None]  # (knots, T, 1): the actions each knot moves
+    lo = torch.where(touches, (lo - start).unsqueeze(-3), -torch.inf).amax(dim=-2)
+    hi = torch.where(touches, (hi - start).unsqueeze(-3), torch.inf).amin(dim=-2)
+    return lo, torch.maximum(hi, lo)  # (a start outside the box on both sides of one knot: the lower bound wins)
 
 
 def interpolation(steps: int, knots: int) -> torch.Tensor:

@@ -61,6 +61,8 @@ class Planner:
             self.obs_keys, self.n_obs_steps = (self.wm_key,), world_model.n_obs_steps
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"--action-steps {self.n_action_steps}: must lie in 1..{self.horizon} (the actions a chunk plans)")
+        if config.knots > self.horizon:
+            raise ValueError(f"--knots {config.knots}: at most {self.horizon}, the actions a chunk plans")
         self.episodes: Sequence[int] | None = None
         self.trace: AscentTrace | None = None  # set one to record the next decisions' gradient ascent (diagnostics)
 
