@@ -58,3 +58,11 @@ def tiny_pusht(tmp_path_factory):
     from faults import train_tiny
 
     return train_tiny(tmp_path_factory.mktemp("tiny_pusht"))
+
+
+@pytest.fixture(scope="session")
+def ckpts(tmp_path_factory) -> dict[str, str]:
+    """A tiny keypoint policy and state world model for the planner tests (tests/tiny_planning.py; trained once)."""
+    from tiny_planning import train_checkpoints
+
+    return train_checkpoints(tmp_path_factory.mktemp("planners"))

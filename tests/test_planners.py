@@ -8,65 +8,25 @@ import json
 import numpy as np
 import pytest
 import torch
+from tiny_planning import PUSHT, gens, histories, planner
 from typer.testing import CliRunner
 
 from gpc.cli.main import app
-from gpc.harness.collection import CollectJob, collect
 from gpc.harness.comparison import paired_interval, t_quantile
-from gpc.harness.evaluation import episode_generator
 from gpc.harness.recipes import PlannerRecipe, RewardSpec, build_reward
-from gpc.models.planning.ascent import AscentTrace, ascend, interpolation, step_size
+from gpc.models.planning.ascent import ascend
 from gpc.models.planning.config import PLANNERS, PlannerConfig
 from gpc.models.planning.loading import load_planner
 from gpc.models.planning.objective import Objective, PartTimer
 from gpc.models.planning.planner import Planner
-from gpc.models.policy.config import policy_profile
 from gpc.models.policy.controller import PolicyController
 from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.registration import RegistrationReward
-from gpc.models.training.config import RunConfig
-from gpc.models.training.trainer import train
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.profiles import world_model_profile
-from gpc.tasks import get_task
 from gpc.tasks.pusht import LAYOUT, SimulatorModel
 from gpc.tasks.pusht.env import PushTEnv
 from gpc.tasks.pusht.record import observe
-
-PUSHT = get_task("pusht")
-
-
-@pytest.fixture(scope="module")
-def ckpts(tmp_path_factory) -> dict[str, str]:
-    """A keypoint policy and a state world model, each trained a few steps on real expert episodes."""
-    tmp = tmp_path_factory.mktemp("planners")
-    collect(CollectJob(task="pusht", out=tmp / "expert.zarr", episodes=4, images=False, max_steps=60))
-    run = dict(batch_size=32, progress=False, accelerator="cpu")
-    policy = train(PolicyModule, policy_profile("tiny", "keypoints", LAYOUT).config, [tmp / "expert.zarr"],
-                          RunConfig(run_dir=tmp / "policy", max_steps=20, **run))
-    wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT).config, [tmp / "expert.zarr"],
-                           RunConfig(run_dir=tmp / "wm", max_steps=20, **run))
-    return {"policy": str(policy.last), "wm": str(wm.last), "dir": str(tmp)}
-
-
-def histories(seeds, sim: bool = False) -> dict[str, np.ndarray]:
-    obs = []
-    for s in seeds:
-        env = PushTEnv()
-        env.reset(seed=s)
-        o = observe(env, images=False, sim=sim)
-        obs.append({k: np.stack([v, v]) for k, v in o.items()})
-    return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
-
-
-def planner(ckpts, **kw) -> Planner:
-    config = PlannerConfig(**{"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high, **kw})
-    policy = PolicyModule.load_from_checkpoint(ckpts["policy"])
-    return Planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), PUSHT), policy)
-
-
-def gens(seeds, sampling_seed: int = 0):
-    return [episode_generator(sampling_seed, s) for s in seeds]
 
 
 @pytest.mark.parametrize("kind,k,m", [("rank", 6, 0), ("opt", 1, 3), ("rank-opt", 3, 3), ("cem", 8, 2),
@@ -126,76 +86,6 @@ def test_rank_opt_batched_equals_one_by_one(ckpts):
         np.testing.assert_allclose(single[0, 0].numpy(), batch[0, k].numpy(), atol=1e-3)
 
 
-def test_gradient_steps_raise_the_predicted_reward(ckpts):
-    p = planner(ckpts, kind="opt", num_proposals=1, opt_steps=10, lr=5.0)
-    seeds = (100000, 100001, 100002)
-    obs = histories(seeds)
-    init = p.policy.sample_batch(obs, 1, gens(seeds))[:, :, p.now :]
-    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
-    before, _ = objective(init)
-    after, _ = objective(ascend(objective, init, p.config, PartTimer())[0])
-    assert torch.all(after >= before - 1e-4) and torch.any(after > before + 0.1)
-
-
-def test_ascent_guards_keep_the_chunk_near_its_start_and_never_below_it(ckpts):
-    """A trust region bounds every move; keep_best returns the best iterate seen; the trace records each step."""
-    seeds = (100000, 100001, 100002)
-    obs = histories(seeds)
-    p = planner(ckpts, kind="rank-opt", num_proposals=3, opt_steps=6, lr=40.0)  # steps far too large: ascent overshoots
-    init = p.policy.sample_batch(obs, 3, gens(seeds))[:, :, p.now :]
-    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
-    start, _ = objective(init)
-    box = dataclasses.replace(p.config, trust_region=3.0)
-    moved = ascend(objective, init, box, PartTimer())[0]
-    assert float((moved - init).abs().max()) <= 3.0 + 1e-4 and float((moved - init).abs().max()) > 2.9
-    trace = AscentTrace()
-    best = dataclasses.replace(p.config, keep_best=True, lr_decay="cosine")
-    chunks, scores, _ = ascend(objective, init, best, PartTimer(), trace)
-    assert torch.all(scores >= start - 1e-5)
-    np.testing.assert_allclose(scores.numpy(), objective(chunks)[0].detach().numpy(), atol=1e-5)  # the scores are the chunks'
-    seen = torch.stack(trace.scores[:-1]).amax(dim=0)  # every iterate scored before each step, and the last
-    np.testing.assert_allclose(scores.numpy(), torch.maximum(seen, trace.scores[-1]).numpy(), atol=1e-5)
-    assert len(trace.chunks) == len(trace.scores) == 7 and len(trace.action_grads) == len(trace.future_grads) == 6
-    assert trace.action_grads[0].shape == (3, 3, init.shape[2]) and trace.future_grads[0].shape[:2] == (3, 3)
-    assert float(trace.action_grads[0].sum()) > 0 and float(trace.future_grads[0].sum()) > 0
-    assert step_size(best, 0) == 40.0 and step_size(best, 3) == pytest.approx(20.0) and step_size(best, 6) == pytest.approx(0.0)
-    weights = list(p.world_model.parameters())  # the planner froze them: ascent computed no gradient for the model
-    assert weights and all(not w.requires_grad and w.grad is None for w in weights)
-
-
-def test_knotted_ascent_bends_the_proposal_smoothly_and_one_knot_per_action_is_plain_ascent(ckpts):
-    """With n knots the chunk moves by a piecewise-linear offset through n points (bounded by the trust region);
-    with a knot per action it is the plain ascent."""
-    weights = interpolation(16, 4)
-    np.testing.assert_allclose(weights.sum(dim=1).numpy(), 1.0, atol=1e-6)
-    assert torch.equal(interpolation(16, 16), torch.eye(16)) and torch.equal(interpolation(5, 1), torch.ones(5, 1))
-    seeds = (100000, 100001, 100002)
-    obs = histories(seeds)
-    p = planner(ckpts, kind="rank-opt", num_proposals=2, opt_steps=8, lr=5.0)
-    init = p.policy.sample_batch(obs, 2, gens(seeds))[:, :, p.now :]
-    objective = Objective(p.world_model, p.reward, torch.as_tensor(obs["state"]), None, PartTimer())
-    before, _ = objective(init)
-    trace = AscentTrace()
-    knotted = dataclasses.replace(p.config, knots=3)
-    chunks, scores, _ = ascend(objective, init, knotted, PartTimer(), trace)
-    offsets = chunks - init
-    basis = interpolation(init.shape[2], 3)
-    through_knots = basis @ (torch.linalg.pinv(basis) @ offsets)  # the offset is a blend of 3 knots
-    np.testing.assert_allclose(through_knots.numpy(), offsets.numpy(), atol=1e-4)
-    assert float(offsets.abs().max()) > 1.0 and torch.any(scores > before + 0.1)
-    np.testing.assert_allclose(scores.numpy(), objective(chunks)[0].detach().numpy(), atol=1e-5)
-    assert len(trace.chunks) == 9 and float(trace.action_grads[0].sum()) > 0
-    bounded = ascend(objective, init, dataclasses.replace(knotted, trust_region=2.0), PartTimer())[0]
-    assert float((bounded - init).abs().max()) <= 2.0 + 1e-4
-    for lr in (5.0, 200.0):  # 200 px steps: the action box binds, and a knot per action still is the plain ascent
-        plain = ascend(objective, init, dataclasses.replace(p.config, lr=lr), PartTimer())[0]
-        per_action = ascend(objective, init, dataclasses.replace(p.config, lr=lr, knots=init.shape[2]), PartTimer())[0]
-        np.testing.assert_allclose(per_action.numpy(), plain.numpy(), atol=1e-3)
-    wide = ascend(objective, init, dataclasses.replace(knotted, lr=200.0), PartTimer())[0]
-    low, high = p.config.action_low, p.config.action_high
-    assert float(wide.min()) >= low and float(wide.max()) <= high and bool(((wide == low) | (wide == high)).any())
-
-
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
     """The gt-sim planner's predicted rewards equal those the episode's own scene then produces."""
     reward = build_reward(RewardSpec(), PUSHT)
@@ -217,25 +107,6 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
         delivered = reward(states)
         assert float(delivered[0]) == pytest.approx(float(plan.scores[0, plan.chosen[0]]), abs=0.05)
         np.testing.assert_allclose(reward.per_step(states)[0], reward.per_step(torch.as_tensor(predicted)[None])[0], atol=0.05)
-
-
-def test_the_ascent_probe_scores_every_iterate_in_the_true_simulator(ckpts, tmp_path):
-    args = ["eval", "ascent", ckpts["policy"], "--world-model", ckpts["wm"], "--seeds", "200000:200002", "--max-steps", "16",
-            "--batch", "2"]
-    res = CliRunner().invoke(app, [*args, "--planner", "rank-opt", "-K", "3", "-M", "4", "--out", str(tmp_path / "a.md")])
-    assert res.exit_code == 0, res.output
-    report = json.loads((tmp_path / "a.json").read_text())
-    assert report["decisions"] == 2 * 2 and report["candidates"] == 4 * 3 and report["steps"] == 4  # 2 episodes x 16 steps, 8 per decision
-    step = report["per_step"]
-    assert len(step["predicted_gain_mean"]) == 5 and step["predicted_gain_mean"][0] == 0.0 and step["moved_mean"][0] == 0.0
-    assert 0.0 <= report["final"]["share_fooled"] <= report["final"]["share_predicted_up"] <= 1.0
-    assert report["model_error"]["start_mean"] > 0 and len(report["gradient"]["per_action_first_step"]) == 15
-    assert report["reward_on_true_frames"] is None  # state futures: the reward already reads true states
-    pick = report["selection"]  # K = 3: what ranking and ascent each deliver over the average proposal
-    assert pick["rank_gain_mean"] <= pick["best_proposal_gain_mean"] and pick["best_proposal_gain_mean"] >= 0.0
-    assert "| share fooled" in (tmp_path / "a.md").read_text()
-    res = CliRunner().invoke(app, [*args, "--planner", "rank", "--out", str(tmp_path / "b.md")])
-    assert res.exit_code != 0 and "takes no gradient steps" in res.output and not (tmp_path / "b.md").exists()
 
 
 def test_deployment_api_acts_on_one_history(ckpts):
