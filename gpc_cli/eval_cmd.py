@@ -57,7 +57,7 @@ with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: str, keep_futures: bool = False,
                         vlm_cache: Path | None = None):
     """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``)."""
-    from gpc.harness.recipes import RewardSpec, make_recipe
+    from gpc.harness.recipes import ASCENT_DEFAULTS, RewardSpec, make_recipe
     from gpc.models.planning.config import SamplingConfig
 
     o = planning
@@ -68,7 +68,7 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
         if not o["vlm_base_url"] or not o["vlm_model"]:
             raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model (the key comes from $OPENAI_API_KEY)")
         vlm = VLMConfig(base_url=o["vlm_base_url"], model=o["vlm_model"], cache_dir=str(vlm_cache) if vlm_cache else None)
-    ascent = {key: o[key] for key in ("lr_decay", "trust_region", "keep_best", "knots")}
+    ascent = {key: o[key] for key in ASCENT_DEFAULTS}  # the gradient planners' guards, named once in recipes
     return make_recipe(checkpoint, planner, world_model=o["world_model"], k=o["k"], m=o["m"], lr=o["lr"], ascent=ascent,
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,

@@ -58,10 +58,10 @@ def ascend(objective: Objective, init: torch.Tensor, config: Any, timer: PartTim
     """M Adam steps on ``(B, K, T, A)`` chunks -> the chunks, their scores ``(B, K)`` and futures ``(B, K, T', ...)``.
 
     ``config`` is a ``PlannerConfig`` (``opt_steps``, ``lr``, ``lr_decay``, ``trust_region``,
-    ``keep_best`` and the action box).
+    ``keep_best``, ``knots`` and the action box).
     """
     start = init.detach()
-    knots = getattr(config, "knots", 0)
+    knots = config.knots
     if knots:  # the offsets ascended, and the chunk they bend the start into
         basis = interpolation(start.shape[-2], knots).to(start)
         variable = start.new_zeros(*start.shape[:-2], knots, start.shape[-1]).requires_grad_(True)
