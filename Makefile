@@ -154,11 +154,12 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision restore-vision probe-opt-vision check-sim clean
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher)"
+	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
@@ -348,6 +349,21 @@ $(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS) $(VCEILING),$(VR
 
 reproduce-pusht-vision: $(VTABLE)
 	@cat $(VTABLE)
+
+# restore-vision: the trained vision checkpoints kept in git (artifacts/pusht-$(PROFILE)/, artifacts/README.md) put where
+# their stages look, so a machine that did not train them goes on from there: NAME.ckpt (a `gpc export`) is a finished
+# stage, marked done; NAME.resume.ckpt (Lightning's whole state) a training that resumes. Nothing in runs/ is replaced.
+ARTIFACTS := artifacts/pusht-$(PROFILE)
+ARTIFACT_STAGES := vpolicy reward wm-visual-phase1 wm-visual-phase2 wm-visual-1step
+restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	@for name in $(ARTIFACT_STAGES); do \
+	  last=$(RUN_DIR)/$$name/checkpoints/last.ckpt; \
+	  for kind in ckpt resume.ckpt; do \
+	    src=$(ARTIFACTS)/$$name.$$kind; [ -f $$src ] || continue; \
+	    if [ -e $$last ]; then echo "kept $$last"; else mkdir -p $$(dirname $$last) && cp $$src $$last && echo "restored $$last"; fi; \
+	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then touch $(RUN_DIR)/$$name.done; fi; \
+	  done; \
+	done
 
 # probe-opt-vision: GPC-OPT (the VRECORD planner) with the chosen visual model on validation seeds, every ascent iterate
 # replayed in the true simulator: predicted against true gain, the share of fooled ascents (docs/results.md).

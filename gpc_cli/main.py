@@ -136,6 +136,36 @@ def inspect_policy(
         print_policy(info)
 
 
+@app.command("export")
+def export(
+    path: Path = typer.Argument(..., help="A gpc checkpoint: policy, world model or reward."),
+    out: Path = typer.Option(..., "--out", "-o", help="The .ckpt file to write (a new path)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a file already at --out."),
+) -> None:
+    """A checkpoint to plan with and share: config, normaliser and weights, without the optimiser's state
+    (the policy keeps only the averaged weights it samples with: a quarter of Lightning's file)."""
+    import io
+
+    import torch
+
+    from gpc.datasets.errors import DataError
+    from gpc.harness.files import check_file_out, write_bytes_atomic
+    from gpc.models.training.checkpoint import for_planning, read_checkpoint
+
+    check_file_out(out, ".ckpt")
+    if out.exists() and out.resolve() == path.resolve():
+        raise DataError(f"{out}: is the checkpoint being exported; --out names a new file")
+    if out.exists() and not overwrite:
+        raise DataError(f"{out}: already exists; choose another --out or pass --overwrite")
+    ckpt = read_checkpoint(path, None)
+    buffer = io.BytesIO()
+    torch.save(for_planning(ckpt), buffer)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(out, buffer.getvalue())
+    typer.echo(f"wrote {out}: {ckpt['gpc']['kind']}, {len(buffer.getvalue()) / 2**20:.1f} MiB "
+               f"(from {path.stat().st_size / 2**20:.1f} MiB)")
+
+
 @app.command("eval-expert")
 def eval_expert(
     seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),

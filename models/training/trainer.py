@@ -43,7 +43,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.datasets.sequence import identities, recorded_held_out, recorded_split
 from gpc.datasets.store import EpisodeStore
-from gpc.models.training.checkpoint import read_checkpoint
+from gpc.models.training.checkpoint import module_state, read_checkpoint
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
 
@@ -196,6 +196,9 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
     start_step, ckpt, init_state = 0, None, None
     if run.resume:
         ckpt = read_checkpoint(last, cls.KIND, task=config.task)
+        if "optimizer_states" not in ckpt:
+            raise DataError(f"{last}: holds no optimiser state (a `gpc export` for planning): "
+                            "training cannot resume it")
         stored = _stored_config(cls, ckpt, last)
         cls.check_resume(stored, config, str(last))
         config, start_step = stored, int(ckpt.get("global_step", 0))
@@ -203,7 +206,7 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
     elif init is not None:
         ckpt = read_checkpoint(init, cls.KIND, task=config.task, obs=getattr(config, "obs_type", None))
         config = cls.continue_from(config, _stored_config(cls, ckpt, Path(init)), str(init))
-        init_state = ckpt["state_dict"]
+        init_state = module_state(ckpt)
     else:
         cls.check_start(config)
 

@@ -1,0 +1,123 @@
+"""`gpc export`: a checkpoint that plans exactly as the trained one, smaller, written without touching anything else."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from tiny_planning import histories
+from typer.testing import CliRunner
+
+from gpc.cli.main import app
+from gpc.datasets.errors import DataError
+from gpc.models.policy.config import policy_profile
+from gpc.models.policy.module import PolicyModule
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import train
+from gpc.models.world_models.module import WorldModelModule
+from gpc.tasks.pusht import LAYOUT
+
+runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def gpc(*args: str):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_exported_policy_samples_the_same_actions_from_a_quarter_of_the_file(ckpts, tmp_path):
+    out = tmp_path / "policy.ckpt"
+    r = gpc("export", ckpts["policy"], "--out", out)
+    assert r.exit_code == 0, r.output
+    assert out.stat().st_size < 0.35 * Path(ckpts["policy"]).stat().st_size  # no optimiser state, no raw copy
+    saved = torch.load(out, weights_only=True)
+    assert "optimizer_states" not in saved and saved["gpc"]["raw_from_average"] == "model."
+    assert not any(k.startswith("model.") for k in saved["state_dict"])
+    trained, exported = PolicyModule.load_from_checkpoint(ckpts["policy"]), PolicyModule.load_from_checkpoint(out)
+    obs = {k: torch.as_tensor(v) for k, v in histories([200000, 200001]).items()}
+
+    def draw(policy: PolicyModule, **kw) -> torch.Tensor:
+        return policy.sample_batch(obs, 3, [torch.Generator().manual_seed(4) for _ in range(2)], **kw)
+
+    a = draw(trained)
+    assert torch.equal(draw(exported), a)
+    assert torch.equal(draw(exported, use_ema=False), a)  # the refilled raw network is the average it samples with
+
+
+def test_exported_world_model_keeps_every_weight(ckpts, tmp_path):
+    out = tmp_path / "wm.ckpt"
+    assert gpc("export", ckpts["wm"], "-o", out).exit_code == 0
+    trained, exported = WorldModelModule.load_from_checkpoint(ckpts["wm"]), WorldModelModule.load_from_checkpoint(out)
+    a, b = trained.state_dict(), exported.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert "raw_from_average" not in torch.load(out, weights_only=True)["gpc"]  # no averaged copy: nothing refilled
+
+
+def test_export_refuses_to_replace_what_it_was_not_asked_to(ckpts, tmp_path):
+    out = tmp_path / "kept.ckpt"
+    out.write_bytes(b"the user's file")
+    r = gpc("export", ckpts["policy"], "--out", out)
+    assert r.exit_code == 2 and "already exists" in r.output and "Traceback" not in r.output
+    assert out.read_bytes() == b"the user's file"
+    assert gpc("export", ckpts["policy"], "--out", out, "--overwrite").exit_code == 0
+    assert PolicyModule.load_from_checkpoint(out) is not None
+    copy = tmp_path / "copy.ckpt"
+    shutil.copy(ckpts["policy"], copy)
+    r = gpc("export", copy, "--out", copy, "--overwrite")
+    assert r.exit_code == 2 and "is the checkpoint being exported" in r.output
+    assert copy.read_bytes() == Path(ckpts["policy"]).read_bytes()
+
+
+def test_export_names_the_bad_input(tmp_path):
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"not a checkpoint")
+    r = gpc("export", junk, "--out", tmp_path / "x.ckpt")
+    assert r.exit_code == 2 and str(junk) in r.output and "unreadable or corrupt" in r.output
+    r = gpc("export", tmp_path / "missing.ckpt", "--out", tmp_path / "x.ckpt")
+    assert r.exit_code == 2 and "no such checkpoint file" in r.output
+    r = gpc("export", junk, "--out", tmp_path / "x.pt")
+    assert r.exit_code == 2 and "names a .ckpt file" in r.output
+    assert not (tmp_path / "x.ckpt").exists()
+
+
+def test_training_refuses_to_resume_an_export(ckpts, tmp_path):
+    run_dir = tmp_path / "policy"
+    (run_dir / "checkpoints").mkdir(parents=True)
+    assert gpc("export", ckpts["policy"], "--out", run_dir / "checkpoints" / "last.ckpt").exit_code == 0
+    config = policy_profile("tiny", "keypoints", LAYOUT).config
+    try:
+        train(PolicyModule, config, [Path(ckpts["dir"]) / "expert.zarr"],
+              RunConfig(run_dir=run_dir, max_steps=30, batch_size=32, progress=False, accelerator="cpu", resume=True))
+    except DataError as exc:
+        assert "holds no optimiser state" in str(exc)
+    else:
+        raise AssertionError("resumed a checkpoint without optimiser state")
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_make_restore_vision_marks_exports_done_and_leaves_trainings_to_resume(ckpts, tmp_path):
+    runs, art = tmp_path / "runs", tmp_path / "artifacts"
+    art.mkdir()
+    assert gpc("export", ckpts["policy"], "--out", art / "vpolicy.ckpt").exit_code == 0
+    shutil.copy(ckpts["wm"], art / "wm-visual-phase1.resume.ckpt")  # a training stopped half-way
+    (runs / "reward" / "checkpoints").mkdir(parents=True)
+    (runs / "reward" / "checkpoints" / "last.ckpt").write_bytes(b"the user's own run")
+    shutil.copy(art / "vpolicy.ckpt", art / "reward.ckpt")  # stands for an exported reward: never copied over theirs
+    for store in ("expert", "explore"):
+        (runs / f"{store}.done").touch()
+    venv = Path(sys.executable).parent.parent
+    make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RUN_DIR={runs}", f"ARTIFACTS={art}"]
+    done = subprocess.run([*make, "restore-vision"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
+    assert (runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
+    assert (runs / "reward" / "checkpoints" / "last.ckpt").read_bytes() == b"the user's own run"
+    assert (runs / "vpolicy.done").exists() and not (runs / "wm-visual-phase1.done").exists()
+    assert not (runs / "reward.done").exists()
+    # the restored policy stage is up to date (make -q: nothing to run); the half-way training is not
+    assert subprocess.run([*make, "-q", str(runs / "vpolicy.done")], cwd=ROOT).returncode == 0
+    assert subprocess.run([*make, "-q", str(runs / "wm-visual-phase1.done")], cwd=ROOT).returncode == 1
