@@ -138,8 +138,8 @@ else ifeq ($(PROFILE),cpu)
   # policy 9,000 steps (0.55 s each on 2 cores: about 82 minutes).
   VPOLICY := --profile cpu --max-steps 9000
   VPOLICY_DATA := $(HUMAN_DATA)
-  VWM1 := --profile cpu --max-steps 38000 --precision bf16-mixed --val-every 5000
-  VWM2 := --profile cpu --max-steps 1000 --precision bf16-mixed --val-every 1000
+  VWM1 := --profile cpu --max-steps 38000 --precision bf16-auto --val-every 5000
+  VWM2 := --profile cpu --max-steps 1000 --precision bf16-auto --val-every 1000
   VDISTILL := --profile cpu
   VREWARD := --profile cpu
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
@@ -148,7 +148,7 @@ else ifeq ($(PROFILE),cpu)
   # VWM_PLAN=onpolicy: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 50 --batch 10
-  VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-mixed --val-every 1000
+  VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-auto --val-every 1000
   VPROBE_ARGS := --seeds 200000:200010 --max-steps 120 --batch 10
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)

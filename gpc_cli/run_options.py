@@ -31,7 +31,7 @@ Accelerator = Annotated[str, typer.Option("--accelerator", help="Lightning accel
 Devices = Annotated[str, typer.Option("--devices", help="Devices per node: a number or auto.")]
 Strategy = Annotated[str, typer.Option("--strategy", help="Lightning strategy, e.g. ddp (gloo on CPU).")]
 NumNodes = Annotated[int, typer.Option("--num-nodes", min=1, help="Machines.")]
-Precision = Annotated[str, typer.Option("--precision", help="32-true, bf16-mixed or 16-mixed.")]
+Precision = Annotated[str, typer.Option("--precision", help="32-true, bf16-mixed, 16-mixed or bf16-auto (bf16-mixed where the hardware computes bf16 natively, else 32-true).")]
 Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed for weights, shuffling, noise and the validation split.")]
 Resume = Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its last checkpoint.")]
 CheckpointEvery = Annotated[int, typer.Option("--checkpoint-every", min=1, help="Steps between refreshes of last.ckpt.")]

@@ -43,7 +43,7 @@ class RunConfig:
     devices: int | str = 1  # devices per node (an int, or "auto")
     strategy: str = "auto"  # Lightning strategy: auto, ddp, ddp_spawn, ...
     num_nodes: int = 1  # machines
-    precision: str = "32-true"  # Lightning precision: 32-true, bf16-mixed, 16-mixed
+    precision: str = "32-true"  # Lightning precision: 32-true, bf16-mixed, 16-mixed, or bf16-auto (trainer.resolve_precision)
     seed: int = 0  # seeds weights, shuffling and noise (shifted by the step count on resume)
     resume: bool = False  # continue from run_dir/checkpoints/last.ckpt
     progress: bool = True  # rich progress bar

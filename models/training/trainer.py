@@ -43,6 +43,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.datasets.sequence import identities, recorded_held_out, recorded_split
 from gpc.datasets.store import EpisodeStore
+from gpc.models.networks.precision import native_bf16
 from gpc.models.training.checkpoint import module_state, read_checkpoint
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
@@ -173,6 +174,7 @@ def train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.P
     directory is made; the run directory is locked while written (one writer), and one this call made is
     removed again if training fails before its first checkpoint.
     """
+    run = resolve_precision(run)
     check_lightning(run)
     run_dir = Path(run.run_dir)
     if getattr(rank_zero_only, "rank", 0) != 0:  # a DDP worker Lightning launched: rank 0 holds the lock and owns the directory
@@ -242,6 +244,15 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
 PRECISIONS = ("32-true", "32", "16-mixed", "bf16-mixed")
+BF16_AUTO = "bf16-auto"  # bf16-mixed where the hardware computes bf16 natively, 32-true elsewhere
+
+
+def resolve_precision(run: RunConfig) -> RunConfig:
+    """``bf16-auto`` made concrete for the device the run trains on (emulated bf16 is slower than float32)."""
+    if run.precision != BF16_AUTO:
+        return run
+    gpu = run.accelerator in ("gpu", "cuda") or (run.accelerator == "auto" and torch.cuda.is_available())
+    return dataclasses.replace(run, precision="bf16-mixed" if native_bf16("cuda" if gpu else "cpu") else "32-true")
 
 
 def check_lightning(run: RunConfig) -> None:
@@ -251,7 +262,8 @@ def check_lightning(run: RunConfig) -> None:
     if run.accelerator in ("gpu", "cuda") and not torch.cuda.is_available():
         raise ValueError(f"--accelerator {run.accelerator}: no GPU is visible to torch on this machine; use cpu or auto")
     if run.precision not in PRECISIONS:
-        raise ValueError(f"--precision {run.precision}: use one of {', '.join(PRECISIONS)} (the models keep 32-bit weights)")
+        raise ValueError(f"--precision {run.precision}: use one of {', '.join((*PRECISIONS, BF16_AUTO))} "
+                         "(the models keep 32-bit weights)")
     devices = run.devices
     if not (devices == "auto" or (isinstance(devices, int) and devices >= 1)
             or (isinstance(devices, str) and devices.isdigit() and int(devices) >= 1)):

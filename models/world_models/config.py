@@ -157,7 +157,7 @@ class VisualDynamicsConfig:
     action_map_sigma: float = 0.03  # blob standard deviation, in action units (the task's drawn agent size)
     motion_weight: float = 0.0  # training: pixels weigh 1 + this x their change since the previous frame (mean |diff| in [-1, 1] units)
     source_size: int | None = None  # frame size of the training stores (filled from the data; others are resized with a warning)
-    bf16: bool = False  # run rollouts under bfloat16 autocast (about 1.5x faster 2-D convolutions on CPU)
+    bf16: bool = False  # rollouts under bfloat16 autocast where the hardware has it (networks.precision); float32 elsewhere
     channels_last: bool = False  # keep the U-Net's weights channels-last (about 9% off a planning decision on CPU)
 
     def __post_init__(self) -> None:

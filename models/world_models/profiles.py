@@ -30,7 +30,7 @@ def world_model_profile(name: str, phase: int, layout: TaskLayout, obs: str = "s
 
     State: ``cpu`` (256x4 MLP, T = 16, trains on 2 cores), ``tiny`` (seconds-long test runs).
     Image: ``cpu`` (48 px, U-Net (16, 32, 64), frameskip 4: a 16-action chunk is 4 predictions,
-    0.9M parameters, bf16 rollouts; train it with ``--precision bf16-mixed``), ``tiny`` (16 px,
+    0.9M parameters, bf16 rollouts where the hardware has them; train it with ``--precision bf16-auto``), ``tiny`` (16 px,
     tests), ``paper`` (96 px, U-Net 4 x 96 with two blocks per level and middle attention,
     conditioning 256, frameskip 1: the paper's model, GPU only).
     ``frame`` (state): ``object`` adds the object-frame features of ``DynamicsConfig.object_frame``

@@ -29,6 +29,7 @@ from torch import nn
 
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.models.networks.edm import Denoiser, EulerConfig, EulerSampler
+from gpc.models.networks.precision import native_bf16
 from gpc.models.networks.unet2d import InnerUNet
 from gpc.models.world_models.config import FEEDBACK, IMAGE_KEY, VisualDynamicsConfig, VisualWorldModelConfig
 
@@ -165,7 +166,8 @@ class VisualDynamics(nn.Module):
         if not bool(torch.isfinite(context).all()) or not bool(torch.isfinite(actions).all()):
             raise ValueError("history or actions hold NaN or inf")
         use = actions.shape[1] // c.frameskip * c.frameskip
-        autocast = torch.autocast(actions.device.type, dtype=torch.bfloat16) if c.bf16 else nullcontext()
+        bf16 = c.bf16 and native_bf16(actions.device.type)  # emulated bf16 is slower than float32
+        autocast = torch.autocast(actions.device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
         with autocast:
             frames = self.unroll(context * 2.0 - 1.0, actions[:, :use], noise, generator)
         return ((frames.float() + 1.0) / 2.0).clamp(0.0, 1.0)
