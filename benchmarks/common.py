@@ -27,9 +27,16 @@ def median_seconds(fn: Callable[[], object], number: int, repeat: int = 5) -> fl
 
 
 def machine() -> str:
+    """The machine as far as the figures depend on it: vector units and bf16 (emulated bf16 is 4-6x slower)."""
     import os
 
-    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    import torch
+
+    from gpc.models.networks.precision import native_bf16
+
+    bf16 = "" if native_bf16("cpu") else ", bf16 emulated"
+    return (f"{platform.machine()} {torch.backends.cpu.get_cpu_capability()}{bf16}, {os.cpu_count()} cores, "
+            f"Python {platform.python_version()}")
 
 
 def show(title: str, header: list[str], rows: list[list[str]]) -> None:
@@ -41,17 +48,19 @@ def show(title: str, header: list[str], rows: list[list[str]]) -> None:
 
 def write_rows(doc: Path, name: str, header: list[str], rows: list[list[str]], key: int) -> None:
     """Put rows (dated) in the benchmark's table in ``doc`` (between the ``bench:NAME`` markers): a row replaces the
-    earlier row of the same setting (its first ``key`` columns), so the table holds each setting's latest figures."""
+    earlier row of the same setting (its first ``key`` columns) on the same kind of machine, so the table holds each
+    setting's latest figures per kind."""
     begin, end = f"<!-- bench:{name}:begin -->", f"<!-- bench:{name}:end -->"
     text = doc.read_text() if doc.exists() else "# Benchmarks\n"
     head = ["date", "machine", *header]
-    new = {tuple(r[:key]): [date.today().isoformat(), machine(), *r] for r in rows}
+    here = machine()
+    new = {(here, *r[:key]): [date.today().isoformat(), here, *r] for r in rows}
     kept: list[list[str]] = []
     if begin in text:
         old = text[text.index(begin) + len(begin) : text.index(end)].strip().splitlines()[2:]
         for line in old:
             cells = [c.strip() for c in line.strip().strip("|").split("|")]
-            if tuple(cells[2 : 2 + key]) not in new:
+            if tuple(cells[1 : 2 + key]) not in new:
                 kept.append(cells)
     table = "\n".join([begin, "| " + " | ".join(head) + " |", "|" + "---|" * len(head),
                         *["| " + " | ".join(r) + " |" for r in kept + list(new.values())], end])

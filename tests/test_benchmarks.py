@@ -25,6 +25,12 @@ def test_rows_replace_the_same_settings_latest_figures(tmp_path):
     rows = table(doc, "x")
     assert len(rows) == 3 and [r.split("|")[3].strip() for r in rows] == ["b", "a", "c"]
     assert rows[1].rstrip(" |").endswith("4")  # a's latest figure
+    lines = doc.read_text().splitlines()  # a row measured on another kind of machine is another row
+    doc.write_text("\n".join(line.replace(common.machine(), "riscv64 RVV, 64 cores") if "| b |" in line else line
+                             for line in lines))
+    common.write_rows(doc, "x", ["work", "setting", "ms"], [["b", "1", "3"]], key=2)
+    rows = table(doc, "x")
+    assert len(rows) == 4 and sum("| b |" in r for r in rows) == 2 and "riscv64 RVV" in rows[0]
 
 
 def test_every_benchmark_runs_small_and_writes_its_table(tmp_path):
