@@ -154,12 +154,13 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision restore-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
+	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) into artifacts/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
@@ -363,6 +364,22 @@ restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	    if [ -e $$last ]; then echo "kept $$last"; else mkdir -p $$(dirname $$last) && cp $$src $$last && echo "restored $$last"; fi; \
 	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then touch $(RUN_DIR)/$$name.done; fi; \
 	  done; \
+	done
+
+# keep-vision: the other way, before a sitting ends: each finished stage exported into artifacts/ (and its runs/ copy
+# replaced by the export, the trained file kept beside as trained.ckpt, so results measured from here on key on the
+# same bytes a restored machine has), an unfinished training's last checkpoint kept whole to resume. Then commit.
+keep-vision: | $(STAMP)
+	@mkdir -p $(ARTIFACTS); for name in $(ARTIFACT_STAGES); do \
+	  dir=$(RUN_DIR)/$$name/checkpoints; [ -f $$dir/last.ckpt ] || continue; \
+	  if [ -f $(RUN_DIR)/$$name.done ]; then \
+	    cmp -s $$dir/last.ckpt $(ARTIFACTS)/$$name.ckpt && continue; \
+	    $(BIN)/gpc export $$dir/last.ckpt --out $(ARTIFACTS)/$$name.ckpt --overwrite || exit 1; \
+	    mv $$dir/last.ckpt $$dir/trained.ckpt && cp $(ARTIFACTS)/$$name.ckpt $$dir/last.ckpt; \
+	    rm -f $(ARTIFACTS)/$$name.resume.ckpt; \
+	  else \
+	    cp $$dir/last.ckpt $(ARTIFACTS)/$$name.resume.ckpt && echo "kept $(ARTIFACTS)/$$name.resume.ckpt (resumes)"; \
+	  fi; \
 	done
 
 # probe-opt-vision: GPC-OPT (the VRECORD planner) with the chosen visual model on validation seeds, every ascent iterate

@@ -121,3 +121,31 @@ def test_make_restore_vision_marks_exports_done_and_leaves_trainings_to_resume(c
     # the restored policy stage is up to date (make -q: nothing to run); the half-way training is not
     assert subprocess.run([*make, "-q", str(runs / "vpolicy.done")], cwd=ROOT).returncode == 0
     assert subprocess.run([*make, "-q", str(runs / "wm-visual-phase1.done")], cwd=ROOT).returncode == 1
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machine(ckpts, tmp_path):
+    runs, art, venv = tmp_path / "runs", tmp_path / "artifacts", Path(sys.executable).parent.parent
+    for name, src in (("vpolicy", ckpts["policy"]), ("wm-visual-phase1", ckpts["wm"])):
+        (runs / name / "checkpoints").mkdir(parents=True)
+        shutil.copy(src, runs / name / "checkpoints" / "last.ckpt")
+    (runs / "vpolicy.done").touch()  # the policy finished; the world model's training is half-way
+    make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RUN_DIR={runs}", f"ARTIFACTS={art}"]
+    kept = subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert kept.returncode == 0, kept.stderr
+    assert (runs / "vpolicy" / "checkpoints" / "trained.ckpt").read_bytes() == Path(ckpts["policy"]).read_bytes()
+    assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
+    assert (art / "wm-visual-phase1.resume.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
+    stamp = (art / "vpolicy.ckpt").stat().st_mtime_ns
+    assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=120).returncode == 0
+    assert (art / "vpolicy.ckpt").stat().st_mtime_ns == stamp  # already kept: not exported again
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    for store in ("expert", "explore"):
+        (fresh / f"{store}.done").touch()
+    restored = subprocess.run([*make[:-2], f"RUN_DIR={fresh}", f"ARTIFACTS={art}", "restore-vision"], cwd=ROOT,
+                              capture_output=True, text=True, timeout=120)
+    assert restored.returncode == 0, restored.stderr
+    for name in ("vpolicy", "wm-visual-phase1"):
+        assert (fresh / name / "checkpoints" / "last.ckpt").read_bytes() == (runs / name / "checkpoints" / "last.ckpt").read_bytes()
+    assert (fresh / "vpolicy.done").exists() and not (fresh / "wm-visual-phase1.done").exists()
