@@ -353,9 +353,12 @@ reproduce-pusht-vision: $(VTABLE)
 
 # restore-vision: the trained vision checkpoints kept in git (artifacts/pusht-$(PROFILE)/, artifacts/README.md) put where
 # their stages look, so a machine that did not train them goes on from there: NAME.ckpt (a `gpc export`) is a finished
-# stage, marked done; NAME.resume.ckpt (Lightning's whole state) a training that resumes. Nothing in runs/ is replaced.
+# stage, marked done; NAME.resume.ckpt (Lightning's whole state) a training that resumes. The evaluations kept with them
+# (results/NAME/: finished, or the groups a stopped one saved) come back after them, so make finds the finished ones up
+# to date and resumes the rest. Nothing already in runs/ or results/ is replaced.
 ARTIFACTS := artifacts/pusht-$(PROFILE)
-ARTIFACT_STAGES := vpolicy reward wm-visual-phase1 wm-visual-phase2 wm-visual-1step
+ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step,$(notdir $(VWM_RUN))-$(s))
+ARTIFACT_RESULTS := $(ARTIFACTS)/results/$(notdir $(VRESULTS))
 restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	@for name in $(ARTIFACT_STAGES); do \
 	  last=$(RUN_DIR)/$$name/checkpoints/last.ckpt; \
@@ -364,11 +367,17 @@ restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	    if [ -e $$last ]; then echo "kept $$last"; else mkdir -p $$(dirname $$last) && cp $$src $$last && echo "restored $$last"; fi; \
 	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then touch $(RUN_DIR)/$$name.done; fi; \
 	  done; \
+	done; \
+	for src in $(ARTIFACT_RESULTS)/*/; do \
+	  [ -d $$src ] || continue; dst=$(VRESULTS)/$$(basename $$src); \
+	  if [ -e $$dst ]; then echo "kept $$dst"; else mkdir -p $(VRESULTS) && cp -r $$src $$dst && echo "restored $$dst"; \
+	    find $$dst -name summary.json -exec touch {} +; fi; \
 	done
 
 # keep-vision: the other way, before a sitting ends: each finished stage exported into artifacts/ (and its runs/ copy
 # replaced by the export, the trained file kept beside as trained.ckpt, so results measured from here on key on the
-# same bytes a restored machine has), an unfinished training's last checkpoint kept whole to resume. Then commit.
+# same bytes a restored machine has), an unfinished training's last checkpoint kept whole to resume, and the
+# evaluations' results (finished or their saved groups, no videos). Then commit.
 keep-vision: | $(STAMP)
 	@mkdir -p $(ARTIFACTS); for name in $(ARTIFACT_STAGES); do \
 	  dir=$(RUN_DIR)/$$name/checkpoints; [ -f $$dir/last.ckpt ] || continue; \
@@ -380,6 +389,11 @@ keep-vision: | $(STAMP)
 	  else \
 	    cp $$dir/last.ckpt $(ARTIFACTS)/$$name.resume.ckpt && echo "kept $(ARTIFACTS)/$$name.resume.ckpt (resumes)"; \
 	  fi; \
+	done; \
+	for src in $(VRESULTS)/*/; do \
+	  [ -d $$src/.groups ] || [ -f $$src/summary.json ] || continue; \
+	  dst=$(ARTIFACT_RESULTS)/$$(basename $$src); rm -rf $$dst.new && mkdir -p $$dst.new && \
+	  cp -r $$src/. $$dst.new/ && find $$dst.new -name '*.mp4' -delete && rm -rf $$dst && mv $$dst.new $$dst; \
 	done
 
 # probe-opt-vision: GPC-OPT (the VRECORD planner) with the chosen visual model on validation seeds, every ascent iterate

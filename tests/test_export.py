@@ -111,7 +111,7 @@ def test_make_restore_vision_marks_exports_done_and_leaves_trainings_to_resume(c
         (runs / f"{store}.done").touch()
     venv = Path(sys.executable).parent.parent
     make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RUN_DIR={runs}", f"ARTIFACTS={art}"]
-    done = subprocess.run([*make, "restore-vision"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = subprocess.run([*make, "restore-vision"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
     assert (runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
@@ -130,22 +130,34 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
         (runs / name / "checkpoints").mkdir(parents=True)
         shutil.copy(src, runs / name / "checkpoints" / "last.ckpt")
     (runs / "vpolicy.done").touch()  # the policy finished; the world model's training is half-way
-    make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RUN_DIR={runs}", f"ARTIFACTS={art}"]
-    kept = subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done, stopped = tmp_path / "results-vision" / "bc", tmp_path / "results-vision" / "vrank-K3"
+    (done / ".groups").mkdir(parents=True)
+    (stopped / ".groups").mkdir(parents=True)
+    for path in (done / "summary.json", done / ".groups" / "0.json", stopped / ".groups" / "0.json", done / "a.mp4"):
+        path.write_text("{}")
+    make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RESULTS={tmp_path / 'results'}", f"RUN_DIR={runs}",
+            f"ARTIFACTS={art}"]
+    kept = subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert kept.returncode == 0, kept.stderr
     assert (runs / "vpolicy" / "checkpoints" / "trained.ckpt").read_bytes() == Path(ckpts["policy"]).read_bytes()
     assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
     assert (art / "wm-visual-phase1.resume.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
+    kept_results = sorted(str(p.relative_to(art)) for p in art.rglob("*.json"))
+    assert kept_results == ["results/results-vision/bc/.groups/0.json", "results/results-vision/bc/summary.json",
+                            "results/results-vision/vrank-K3/.groups/0.json"]  # the videos stay behind
     stamp = (art / "vpolicy.ckpt").stat().st_mtime_ns
-    assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=120).returncode == 0
+    assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
     assert (art / "vpolicy.ckpt").stat().st_mtime_ns == stamp  # already kept: not exported again
     fresh = tmp_path / "fresh"
     fresh.mkdir()
+    shutil.rmtree(tmp_path / "results-vision")
     for store in ("expert", "explore"):
         (fresh / f"{store}.done").touch()
     restored = subprocess.run([*make[:-2], f"RUN_DIR={fresh}", f"ARTIFACTS={art}", "restore-vision"], cwd=ROOT,
-                              capture_output=True, text=True, timeout=120)
+                              capture_output=True, text=True, timeout=300)
     assert restored.returncode == 0, restored.stderr
     for name in ("vpolicy", "wm-visual-phase1"):
         assert (fresh / name / "checkpoints" / "last.ckpt").read_bytes() == (runs / name / "checkpoints" / "last.ckpt").read_bytes()
     assert (fresh / "vpolicy.done").exists() and not (fresh / "wm-visual-phase1.done").exists()
+    assert (stopped / ".groups" / "0.json").exists() and not (stopped / "summary.json").exists()
+    assert (done / "summary.json").stat().st_mtime_ns >= (fresh / "vpolicy.done").stat().st_mtime_ns  # up to date for make
