@@ -182,29 +182,6 @@ def test_frozen_noise_is_deterministic_and_differentiable(phase1, store):
     assert torch.equal(s1, s2) and not torch.equal(s1, s3) and not torch.equal(s1, a)
 
 
-def test_bf16_rolls_out_only_where_the_hardware_computes_it(phase1, store, monkeypatch):
-    """A bf16 model rolls out in float32 where bf16 would be emulated (4-6x slower on an AVX2 CPU), under bf16
-    autocast where it is native; training's ``--precision bf16-auto`` follows the same test."""
-    import copy
-
-    import gpc.models.world_models.visual as visual
-
-    model = copy.deepcopy(phase1.module).eval()
-    hist, acts = _windows(store, model)
-    with torch.no_grad():
-        fp32 = model.rollout(hist, acts)
-        model.dynamics.config = dataclasses.replace(model.dynamics.config, bf16=True)
-        monkeypatch.setattr(visual, "native_bf16", lambda device: False)
-        assert torch.equal(model.rollout(hist, acts), fp32)
-        monkeypatch.setattr(visual, "native_bf16", lambda device: True)
-        assert not torch.equal(model.rollout(hist, acts), fp32)
-    for native, expected in ((False, "32-true"), (True, "bf16-mixed")):
-        monkeypatch.setattr(wmt, "native_bf16", lambda device, native=native: native)
-        run = RunConfig(run_dir="unused", max_steps=1, precision="bf16-auto", accelerator="cpu")
-        assert wmt.resolve_precision(run).precision == expected
-    assert wmt.resolve_precision(dataclasses.replace(run, precision="bf16-mixed")).precision == "bf16-mixed"  # as asked
-
-
 def test_batched_rollouts_equal_one_by_one(phase2, store):
     model = WorldModelModule.load_from_checkpoint(phase2.last)
     assert isinstance(model, WorldModel) and not model.training and model.n_obs_steps == 3
