@@ -377,7 +377,9 @@ restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 # keep-vision: the other way, before a sitting ends: each finished stage exported into artifacts/ (and its runs/ copy
 # replaced by the export, the trained file kept beside as trained.ckpt, so results measured from here on key on the
 # same bytes a restored machine has), an unfinished training's last checkpoint kept whole to resume, and the
-# evaluations' results (finished or their saved groups, no videos). Then commit.
+# evaluations' results (finished or their saved groups, no videos). Then commit. A training state over KEEP_RESUME_MB
+# (the image policy's: 123 MB, Adam's moments of both weight copies) stays behind: that stage must finish in one sitting.
+KEEP_RESUME_MB ?= 32
 keep-vision: | $(STAMP)
 	@mkdir -p $(ARTIFACTS); for name in $(ARTIFACT_STAGES); do \
 	  dir=$(RUN_DIR)/$$name/checkpoints; [ -f $$dir/last.ckpt ] || continue; \
@@ -386,6 +388,8 @@ keep-vision: | $(STAMP)
 	    $(BIN)/gpc export $$dir/last.ckpt --out $(ARTIFACTS)/$$name.ckpt --overwrite || exit 1; \
 	    mv $$dir/last.ckpt $$dir/trained.ckpt && cp $(ARTIFACTS)/$$name.ckpt $$dir/last.ckpt; \
 	    rm -f $(ARTIFACTS)/$$name.resume.ckpt; \
+	  elif [ $$(du -m $$dir/last.ckpt | cut -f1) -gt $(KEEP_RESUME_MB) ]; then \
+	    echo "not kept: $$dir/last.ckpt ($$(du -m $$dir/last.ckpt | cut -f1) MB of training state; KEEP_RESUME_MB=$(KEEP_RESUME_MB))"; \
 	  else \
 	    cp $$dir/last.ckpt $(ARTIFACTS)/$$name.resume.ckpt && echo "kept $(ARTIFACTS)/$$name.resume.ckpt (resumes)"; \
 	  fi; \

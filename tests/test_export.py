@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -31,8 +33,13 @@ def gpc(*args: str):
 
 def test_exported_policy_samples_the_same_actions_from_a_quarter_of_the_file(ckpts, tmp_path):
     out = tmp_path / "policy.ckpt"
-    r = gpc("export", ckpts["policy"], "--out", out)
+    mask = os.umask(0o022)
+    try:
+        r = gpc("export", ckpts["policy"], "--out", out)
+    finally:
+        os.umask(mask)
     assert r.exit_code == 0, r.output
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644  # as any file the user writes: written whole, not private
     assert out.stat().st_size < 0.35 * Path(ckpts["policy"]).stat().st_size  # no optimiser state, no raw copy
     saved = torch.load(out, weights_only=True)
     assert "optimizer_states" not in saved and saved["gpc"]["raw_from_average"] == "model."
@@ -137,6 +144,8 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
         path.write_text("{}")
     make = ["make", "-s", f"VENV={venv}", "PROFILE=smoke", f"RESULTS={tmp_path / 'results'}", f"RUN_DIR={runs}",
             f"ARTIFACTS={art}"]
+    small = subprocess.run([*make, "keep-vision", "KEEP_RESUME_MB=0"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert small.returncode == 0 and "not kept" in small.stdout and not (art / "wm-visual-phase1.resume.ckpt").exists()
     kept = subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert kept.returncode == 0, kept.stderr
     assert (runs / "vpolicy" / "checkpoints" / "trained.ckpt").read_bytes() == Path(ckpts["policy"]).read_bytes()
