@@ -1,4 +1,6 @@
-"""Golden outputs: tiny networks with fixed weights give the numbers stored in ``tests/golden/outputs.json`` (to 1e-5).
+"""Golden outputs: tiny networks with fixed weights give the numbers stored in ``tests/golden/outputs.json`` (to 1e-5
+of the outputs' scale: float32 kernels differ in their last bits between CPUs, AVX2 against AVX-512, and a policy's
+actions reach 512 px, where float32 resolves 3e-5).
 
 The weights are drawn per parameter name (not per construction order), so a refactor that keeps
 the networks and their parameter names (what checkpoints depend on) must keep these numbers; one
@@ -101,5 +103,6 @@ def test_tiny_networks_reproduce_their_stored_outputs(name):
     stored = np.asarray(json.loads(GOLDEN.read_text())[name])
     got = np.asarray(OUTPUTS[name]())
     assert got.shape == stored.shape
-    assert np.abs(got - stored).max() <= 1e-5, np.abs(got - stored).max()
+    scale = max(1.0, float(np.abs(stored).max()))
+    assert np.abs(got - stored).max() <= 1e-5 * scale, (np.abs(got - stored).max(), scale)
     assert np.std(got) > 1e-3  # the outputs vary (a network stuck at a constant would pass anything)
