@@ -44,6 +44,17 @@ def test_help_lists_commands_and_options():
         assert opt in col
 
 
+def test_the_command_and_collection_start_without_lightning():
+    """Lightning takes 2-5 s to import: `gpc --help` and every collection process (and its workers) skip it."""
+    import subprocess
+    import sys
+
+    code = ("import sys, gpc.cli.main, gpc.harness.collection, gpc.harness.comparison, gpc.harness.stores; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'lightning'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
 def test_data_info_table_and_json(tmp_path):
     path = _store(tmp_path / "s.zarr")
     res = gpc("data", "info", str(path), "--json")

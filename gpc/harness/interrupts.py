@@ -21,9 +21,6 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 
-import lightning as L
-from lightning.pytorch.callbacks import Callback
-
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _requested: list[int] = []
 
@@ -85,6 +82,13 @@ def deferred_signals() -> Iterator[None]:
         _requested.clear()
 
 
+def reclaim_sigterm() -> None:
+    """Put the stop flag's handler back for SIGTERM where something replaced it (Lightning does, for a fit);
+    a no-op outside ``deferred_signals`` and off the main thread."""
+    if active() and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _handler)
+
+
 def ignore_in_worker() -> None:
     """Worker processes leave Ctrl-C (sent to the whole process group) to their parent, which polls its flag and
     ends them; SIGTERM keeps its default, since that is how the parent's pool ends its workers."""
@@ -114,26 +118,3 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
         except StopIteration:
             return
         yield item
-
-
-class StopOnSignal(Callback):
-    """Ends training after the current step when a stop was asked for; ``last.ckpt`` is then written as at the end.
-
-    Lightning puts its own SIGTERM handler in place for the fit (it exits 0 without a checkpoint);
-    ours is put back when training starts, so SIGTERM stops like Ctrl-C.
-    """
-
-    def __init__(self) -> None:
-        self.stopped_at: int | None = None
-
-    def on_train_start(self, trainer: L.Trainer, *args: Any) -> None:
-        if active() and threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, _handler)
-
-    def on_train_batch_end(self, trainer: L.Trainer, *args: Any) -> None:
-        if requested() is not None and self.stopped_at is None:
-            self.stopped_at = trainer.global_step
-            trainer.should_stop = True
-            # Lightning runs a whole validation pass before honouring should_stop: on an image world model that
-            # held a SIGTERM for minutes (20 beside another job). A stop keeps the step's weights, not a score.
-            trainer.fit_loop.epoch_loop._skip_next_val = True
