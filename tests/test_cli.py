@@ -45,14 +45,16 @@ def test_help_lists_commands_and_options():
 
 
 def test_the_command_and_collection_start_without_lightning():
-    """Lightning takes 2-5 s to import: `gpc --help` and every collection process (and its workers) skip it."""
+    """Lightning takes 2-5 s to import and torch 2-3 s: `gpc --help`, `gpc compare` and `gpc data` skip both, every
+    collection process (and its workers) skips Lightning."""
     import subprocess
     import sys
 
-    code = ("import sys, gpc.cli.main, gpc.harness.collection, gpc.harness.comparison, gpc.harness.stores; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'lightning'))")
+    loaded = "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'lightning'}))"
+    code = ("import sys, gpc.cli.main, gpc.harness.comparison, gpc.harness.stores, gpc.tasks.pusht.record; "
+            f"{loaded}; import gpc.harness.collection; {loaded}")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+    assert out.returncode == 0 and out.stdout.split("\n")[:2] == ["[]", "['torch']"], out.stdout + out.stderr
 
 
 def test_data_info_table_and_json(tmp_path):

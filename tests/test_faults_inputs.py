@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zarr
-from faults import FAST, eval_args, gpc, one_line, wide_store
+from faults import FAST, eval_args, gpc, inline, one_line, wide_store
 
 from gpc.datasets.store import EpisodeStore
 from gpc.models.policy.config import policy_profile
@@ -50,10 +50,10 @@ def test_a_training_refused_at_the_door_leaves_nothing_behind(tiny_pusht, tmp_pa
     else:
         extra, expect = ["--val-ratio", "0.5"], "longer than every episode"
         store = str(tmp_path / "short.zarr")
-        assert gpc("collect", "--out", store, "--episodes", "2", "--no-images", "--max-steps", "5").returncode == 0
+        assert inline("collect", "--out", store, "--episodes", "2", "--no-images", "--max-steps", "5")[0] == 0
     run = tmp_path / "run"
     args = ["train", "policy", "--dataset", store, "--out", str(run), "--profile", "tiny", "--max-steps", "2", "--no-progress"]
-    one_line(gpc(*args, *([] if "--accelerator" in extra else ["--accelerator", "cpu"]), *extra), 2, expect)
+    one_line(inline(*args, *([] if "--accelerator" in extra else ["--accelerator", "cpu"]), *extra), 2, expect)
     assert not run.exists()  # a failed start leaves no run directory
 
 
@@ -64,7 +64,7 @@ def test_a_damaged_chunk_or_metadata_file_is_named(tiny_pusht, tmp_path):
     chunk.write_bytes(chunk.read_bytes()[: len(chunk.read_bytes()) // 2])  # truncated
     args = ["train", "policy", "--dataset", str(copy), "--out", str(tmp_path / "run"), "--profile", "tiny", "--max-steps", "2",
             "--accelerator", "cpu", "--no-progress"]
-    one_line(gpc(*args), 2, str(copy), "data/state chunk 0", "cannot be decoded")
+    one_line(inline(*args), 2, str(copy), "data/state chunk 0", "cannot be decoded")
     assert not (tmp_path / "run").exists()
     (copy / "data" / "action" / ".zarray").write_text('{"chunks": [')
     one_line(gpc("data", "info", str(copy)), 2, str(copy / "data" / "action" / ".zarray"), "unreadable Zarr store")
@@ -74,7 +74,7 @@ def test_a_policy_of_another_observation_width_is_refused_by_eval(tmp_path):
     store = wide_store(tmp_path / "w.zarr")
     policy = train(PolicyModule, policy_profile("tiny", "keypoints", LAYOUT).config, [store],
                    RunConfig(run_dir=tmp_path / "p", max_steps=2, batch_size=8, progress=False, accelerator="cpu"))
-    one_line(gpc("eval", str(policy.last), "--seeds", "100000", "--out", str(tmp_path / "res")), 2,
+    one_line(inline("eval", str(policy.last), "--seeds", "100000", "--out", str(tmp_path / "res")), 2,
              "trained on state rows of (3,)", "task pusht observes (5,)")
     assert not (tmp_path / "res").exists()
 
@@ -84,7 +84,7 @@ def test_output_paths_are_checked_before_any_work(tiny_pusht, tmp_path):
     afile = tmp_path / "file"
     afile.write_text("keep")
     t0 = time.time()
-    one_line(gpc(*eval_args(tiny_pusht, afile)), 2, str(afile), "is a file")
+    one_line(inline(*eval_args(tiny_pusht, afile)), 2, str(afile), "is a file")
     one_line(gpc("data", "video", str(tiny_pusht["store"]), "--out", str(tmp_path)), 2, str(tmp_path), "is a folder")
     assert not list(tmp_path.glob(".*partial*")) and afile.read_text() == "keep"
     assert time.time() - t0 < 60
@@ -120,9 +120,9 @@ def test_a_read_only_filesystem_is_refused_before_the_work(tiny_pusht, tmp_path)
         (ro / "inside").mkdir()
         subprocess.run(["mount", "-o", "remount,ro", str(ro)], check=True, capture_output=True)
         one_line(gpc("collect", "--out", str(ro / "s.zarr"), "--episodes", "1", *FAST), 2, str(ro), "read-only file system")
-        one_line(gpc(*eval_args(tiny_pusht, ro / "inside" / "res")), 2, str(ro / "inside" / "res"), "read-only file system")
+        one_line(inline(*eval_args(tiny_pusht, ro / "inside" / "res")), 2, str(ro / "inside" / "res"), "read-only file system")
         args = ["train", "policy", "--dataset", str(tiny_pusht["store"]), "--out", str(ro / "run"), "--profile", "tiny",
                 "--max-steps", "2", "--accelerator", "cpu", "--no-progress"]
-        one_line(gpc(*args), 2, str(ro), "ead-only file system")
+        one_line(inline(*args), 2, str(ro), "ead-only file system")
     finally:
         subprocess.run(["umount", "-l", str(ro)], capture_output=True)

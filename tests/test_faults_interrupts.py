@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
-from faults import eval_args, finish, gpc, one_line, same_store, spawn, wait_for
+from faults import eval_args, finish, gpc, inline, one_line, same_store, spawn, wait_for
 
 from gpc.datasets.store import EpisodeStore
 from gpc.models.policy.module import PolicyModule
@@ -75,7 +75,7 @@ def test_a_stopped_or_killed_eval_resumes_to_the_results_of_an_uninterrupted_one
     proc = spawn(*eval_args(tiny_pusht, out))
     wait_for(lambda: len(list((out / ".groups").glob("group-*.json"))) >= 2)
     one_line(finish(proc, signal.SIGTERM), 143, "stopped by SIGTERM", "lockstep groups are kept", "--resume")
-    one_line(gpc(*eval_args(tiny_pusht, out)), 2, str(out), "--resume")  # a plain re-run does not clobber them
+    one_line(inline(*eval_args(tiny_pusht, out)), 2, str(out), "--resume")  # a plain re-run does not clobber them
     proc = spawn(*eval_args(tiny_pusht, out, "--resume"))
     wait_for(lambda: len(list((out / ".groups").glob("group-*.json"))) >= 4)
     finish(proc, signal.SIGKILL)

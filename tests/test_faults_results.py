@@ -16,8 +16,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 # ---------------------------------------------------------------------- comparisons refuse what is not comparable
 def test_compare_refuses_runs_of_other_settings_and_names_damaged_files(tiny_pusht, tmp_path):
     base = ["eval", str(tiny_pusht["policy"]), "--seeds", "100000:100002", "--batch", "2"]
-    assert gpc(*base, "--max-steps", "20", "--out", str(tmp_path / "bc")).returncode == 0
-    assert gpc(*base, "--max-steps", "30", "--out", str(tmp_path / "bc30")).returncode == 0
+    assert inline(*base, "--max-steps", "20", "--out", str(tmp_path / "bc"))[0] == 0
+    assert inline(*base, "--max-steps", "30", "--out", str(tmp_path / "bc30"))[0] == 0
     out = str(tmp_path / "t.md")
     one_line(gpc("compare", str(tmp_path / "bc30"), "--baseline", str(tmp_path / "bc"), "--out", out), 2,
              "--max-steps 30 differs from the baseline's 20")
@@ -29,7 +29,7 @@ def test_compare_refuses_runs_of_other_settings_and_names_damaged_files(tiny_pus
 
 def test_results_of_another_kind_are_never_replaced(tiny_pusht, tmp_path):
     res = tmp_path / "res"
-    assert gpc("eval", str(tiny_pusht["policy"]), "--seeds", "100000:100002", "--max-steps", "5", "--out", str(res)).returncode == 0
+    assert inline("eval", str(tiny_pusht["policy"]), "--seeds", "100000:100002", "--max-steps", "5", "--out", str(res))[0] == 0
     before = digest(res)
     one_line(inline("compare", str(res), "--baseline", str(res), "--out", str(res / "summary.md")), 2,
              "not a comparison gpc wrote")
@@ -92,12 +92,12 @@ def test_the_rest_of_the_reported_cases_are_one_line_each(tiny_pusht, tmp_path):
     proc = spawn("eval-expert", "--seeds", "100000:100100")
     wait_deferring(proc)
     one_line(finish(proc, signal.SIGINT), 130, "stopped by SIGINT", "episodes were scored", alone=False)
-    lr = one_line(gpc("eval", str(tiny_pusht["policy"]), "--planner", "rank", "--world-model", str(tiny_pusht["wm"]), "--lr", "-5",
-                      "--out", str(tmp_path / "lr")), 2, "--lr -5")
+    lr = one_line(inline("eval", str(tiny_pusht["policy"]), "--planner", "rank", "--world-model", str(tiny_pusht["wm"]), "--lr", "-5",
+                         "--out", str(tmp_path / "lr")), 2, "--lr -5")
     assert "temperature" not in lr and "init_std" not in lr
     info = gpc("data", "info", str(wide_store(tmp_path / "w.zarr")))
     assert info.returncode == 0 and "no task figures" in info.stdout and "Traceback" not in info.stderr
-    assert gpc("eval", str(tiny_pusht["policy"]), "--seeds", "100000", "--max-steps", "5", "--out", str(tmp_path / "bc")).returncode == 0
+    assert inline("eval", str(tiny_pusht["policy"]), "--seeds", "100000", "--max-steps", "5", "--out", str(tmp_path / "bc"))[0] == 0
     summary = json.loads((tmp_path / "bc" / "summary.json").read_text())
     del summary["decision_latency_s"]
     (tmp_path / "bc" / "summary.json").write_text(json.dumps(summary))

@@ -126,5 +126,5 @@ def test_a_second_training_into_the_same_run_directory_fails_naming_the_first(ti
             "--max-steps", "400", "--batch-size", "8", "--accelerator", "cpu", "--no-progress"]
     first = spawn(*args)
     wait_for(lambda: (tmp_path / "run" / "run.json").is_file())
-    one_line(gpc(*args), 2, f"pid {first.pid}", "writing this run directory")
+    one_line(inline(*args), 2, f"pid {first.pid}", "writing this run directory")
     finish(first, signal.SIGKILL)

@@ -13,10 +13,14 @@ amount once contacts persist across the decision (measured by ``gpc check-sim``:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
 
 from gpc.tasks.pusht.sim import PushTSim, SimSnapshot
+
+if TYPE_CHECKING:
+    import torch
 
 SIM_KEY = "sim"
 SIM_DIM = 10  # agent x, y, vx, vy; block x, y, angle, vx, vy, omega
@@ -43,6 +47,8 @@ class SimulatorModel:
         self._sim = PushTSim()
 
     def rollout(self, history: torch.Tensor | np.ndarray, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
+        import torch  # here, not at the top: recording, `gpc data` and `gpc compare` read this module without torch
+
         history = np.asarray(torch.as_tensor(history).detach().cpu(), dtype=np.float64)
         actions = np.asarray(torch.as_tensor(actions).detach().cpu(), dtype=np.float64)
         if actions.ndim != 3 or actions.shape[-1] != 2:
