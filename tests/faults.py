@@ -1,8 +1,10 @@
 """What the fault tests share: running `gpc` in its own process, waiting on it, and checking its one-line refusals.
 
-Every fault case (tests/test_faults_*.py) runs the `gpc` command in its own process and checks three things: the
-exit code (2 for bad input or an OS error, 130 / 143 for SIGINT / SIGTERM), that stderr is one line naming the
-file or option and the problem (no traceback), and that every byte on disk before the command is still there.
+Every fault case (tests/test_faults_*.py) runs the `gpc` command and checks three things: the exit code (2 for bad
+input or an OS error, 130 / 143 for SIGINT / SIGTERM), that stderr is one line naming the file or option and the
+problem (no traceback), and that every byte on disk before the command is still there. Cases that stop, kill or race
+a command run it in its own process; refusals at the door run in this one through Typer's runner (`inline`), which
+sees the same exit code and line without a process start that imports Lightning (about 6 s each on 2 cores).
 docs/reliability.md lists the promises these cases hold.
 """
 
