@@ -52,6 +52,36 @@ def test_a_signal_to_the_whole_process_group_stops_parallel_collection_promptly(
     assert time.time() - t0 < 30
 
 
+def _workers_of(pid: int) -> list[int]:
+    """The multiprocessing workers ``pid`` spawned (Linux's /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) == pid and b"spawn_main" in (stat.parent / "cmdline").read_bytes():
+                found.append(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):  # a process that ended while read
+            pass
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from Linux's /proc")
+def test_a_second_signal_ends_the_parallel_workers_with_their_parent(tmp_path):
+    """make passes its SIGTERM on to the job and the user's kill adds one: gpc ends at once, its workers with it
+    (they once played their lockstep groups to the end, for minutes, then died on a broken pipe)."""
+    out = tmp_path / "s.zarr"
+    proc = spawn("collect", "--out", str(out), "--episodes", "200", "--explore", "--no-images", "--max-steps", "300",
+                 "--workers", "2")
+    wait_for(lambda: EpisodeStore.open(out).n_episodes >= 2)
+    workers = _workers_of(proc.pid)
+    assert len(workers) == 2
+    proc.send_signal(signal.SIGTERM)
+    time.sleep(0.05)  # two signals pending at once are one signal
+    proc.send_signal(signal.SIGTERM)
+    one_line(finish(proc), 143, "second signal ended gpc at once", alone=False)
+    wait_for(lambda: not any(Path(f"/proc/{pid}").exists() for pid in workers), timeout=10)
+
+
 def test_a_stopped_recording_keeps_whole_episodes_and_resumes_to_the_same_store(tiny_pusht, tmp_path):
     """`gpc record` (a planner's closed-loop episodes): SIGTERM between lockstep groups (of one), then the same command."""
     args = lambda out: ("record", str(tiny_pusht["policy"]), "--planner", "opt", "-M", "2", "--world-model",  # noqa: E731

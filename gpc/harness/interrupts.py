@@ -23,6 +23,7 @@ from typing import Any
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _requested: list[int] = []
+_workers: set[int] = set()  # pids of the pool workers this process waits on (``polled``): a second signal ends them
 
 
 class Interrupted(BaseException):
@@ -55,6 +56,11 @@ def check() -> None:
 
 def _handler(signum: int, frame: FrameType | None) -> None:
     if _requested:  # the second signal: end now, without running Python code that could be anywhere
+        for pid in tuple(_workers):  # else they would run on to their group's end, then fail to hand it over
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
         name = signal.Signals(signum).name
         os.write(2, f"gpc: stopped by {name}: a second signal ended gpc at once; whole episodes, groups and "
                     "checkpoints already written are kept (run the same command, or --resume, to go on)\n".encode())
@@ -100,21 +106,28 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
 
     A SIGTERM to the whole process group ends the workers at once; the parent then stops on its own
     flag instead of waiting forever for their lost results. A worker that dies alone (the kernel's
-    out-of-memory killer) is reported in one line instead of a hang.
+    out-of-memory killer) is reported in one line instead of a hang. A second signal (make passes its
+    SIGTERM on to the job, then a user's ``kill`` adds one) ends the parent at once and these workers
+    with it, so none plays its group to the end for nobody.
     """
     workers = list(getattr(pool, "_pool", ()))  # multiprocessing keeps its workers there
-    while True:
-        try:
-            item = results.next(every)  # type: ignore[attr-defined]  # IMapIterator.next takes a timeout
-        except mp.TimeoutError:
-            check()
-            dead = [w for w in workers if w.exitcode is not None]
-            if dead:
-                code = dead[0].exitcode
-                how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with status {code}"
-                raise OSError(f"a worker process (pid {dead[0].pid}) {how}, e.g. by the out-of-memory killer; "
-                              "what was finished is kept (run the same command again, or with fewer --workers)") from None
-            continue
-        except StopIteration:
-            return
-        yield item
+    pids = {w.pid for w in workers}
+    _workers.update(pids)
+    try:
+        while True:
+            try:
+                item = results.next(every)  # type: ignore[attr-defined]  # IMapIterator.next takes a timeout
+            except mp.TimeoutError:
+                check()
+                dead = [w for w in workers if w.exitcode is not None]
+                if dead:
+                    code = dead[0].exitcode
+                    how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with status {code}"
+                    raise OSError(f"a worker process (pid {dead[0].pid}) {how}, e.g. by the out-of-memory killer; what "
+                                  "was finished is kept (run the same command again, or with fewer --workers)") from None
+                continue
+            except StopIteration:
+                return
+            yield item
+    finally:
+        _workers.difference_update(pids)
