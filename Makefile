@@ -273,6 +273,7 @@ VPOLICY_CKPT := $(RUN_DIR)/vpolicy/checkpoints/last.ckpt
 VWM_RUN := $(WM_RUN)-visual
 VWM_CKPT := $(VWM_RUN)-phase2/checkpoints/last.ckpt
 VSTUDENT_CKPT := $(VWM_RUN)-1step/checkpoints/last.ckpt
+VONPOLICY_STUDENT_CKPT := $(VWM_RUN)-onpolicy-1step/checkpoints/last.ckpt
 ifeq ($(VWM_PLAN),student)
   VPLAN_DONE := $(VWM_RUN)-1step.done
   VPLAN_CKPT := $(VSTUDENT_CKPT)
@@ -283,7 +284,7 @@ else ifeq ($(VWM_PLAN),teacher)
   VRESULTS := $(RESULTS)-vision-teacher
 else ifeq ($(VWM_PLAN),onpolicy)
   VPLAN_DONE := $(VWM_RUN)-onpolicy-1step.done
-  VPLAN_CKPT := $(VWM_RUN)-onpolicy-1step/checkpoints/last.ckpt
+  VPLAN_CKPT := $(VONPOLICY_STUDENT_CKPT)
   VRESULTS := $(RESULTS)-vision-onpolicy
 else
   $(error VWM_PLAN=$(VWM_PLAN): use student, teacher or onpolicy)
@@ -338,10 +339,10 @@ $(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done
 	touch $@
 
 $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
-	if [ -f $(VPLAN_CKPT) ]; then resume=--resume; fi; \
+	if [ -f $(VONPOLICY_STUDENT_CKPT) ]; then resume=--resume; fi; \
 	$(BIN)/gpc train world-model --distill $(VONPOLICY_CKPT) --sampler-steps 1 $(WM_DATA) --dataset $(VRECORDED) $(VDISTILL) \
 	  --seed 0 --out $(VWM_RUN)-onpolicy-1step $$resume
-	$(BIN)/gpc eval world-model $(VPLAN_CKPT) $(WM_DATA) --dataset $(VRECORDED)
+	$(BIN)/gpc eval world-model $(VONPOLICY_STUDENT_CKPT) $(WM_DATA) --dataset $(VRECORDED)
 	touch $@
 
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done
