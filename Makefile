@@ -289,6 +289,8 @@ else ifeq ($(VWM_PLAN),onpolicy)
 else
   $(error VWM_PLAN=$(VWM_PLAN): use student, teacher or onpolicy)
 endif
+# BC and the ceiling read no world model, so every VWM_PLAN's table shares them.
+VSHARED := $(RESULTS)-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
 VTABLE := $(if $(filter cpu1student,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
@@ -346,14 +348,14 @@ $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
 	touch $@
 
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done
-$(eval $(call eval_rule,bc,$(VRESULTS),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
+$(eval $(call eval_rule,bc,$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
 $(foreach n,$(VPLANNERS),$(eval $(call eval_rule,$(n),$(VRESULTS),$(VDONE),\
   $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) $(VEVAL))))
-$(eval $(call eval_rule,$(VCEILING),$(VRESULTS),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL)))
+$(eval $(call eval_rule,$(VCEILING),$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL)))
 
-$(VTABLE): $(VRESULTS)/bc/summary.json $(foreach n,$(VPLANNERS) $(VCEILING),$(VRESULTS)/$(n)/summary.json)
-	$(BIN)/gpc compare $(foreach n,$(VPLANNERS) $(VCEILING),$(VRESULTS)/$(n)) --baseline $(VRESULTS)/bc \
-	  --ceiling $(VRESULTS)/$(VCEILING) --paper pusht-vision --out $@ \
+$(VTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json) $(VSHARED)/$(VCEILING)/summary.json
+	$(BIN)/gpc compare $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)) $(VSHARED)/$(VCEILING) --baseline $(VSHARED)/bc \
+	  --ceiling $(VSHARED)/$(VCEILING) --paper pusht-vision --out $@ \
 	  --title "Vision Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC ($(VWM_PLAN) world model)"
 
 reproduce-pusht-vision: $(VTABLE)
@@ -365,10 +367,13 @@ reproduce-pusht-vision: $(VTABLE)
 # (results/NAME/: finished, or the groups a stopped one saved) come back after them, so make finds the finished ones up
 # to date and resumes the rest. Nothing already in runs/ or results/ is replaced.
 ARTIFACTS := artifacts/pusht-$(PROFILE)
-ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step,$(notdir $(VWM_RUN))-$(s))
-ARTIFACT_RESULTS := $(ARTIFACTS)/results/$(notdir $(VRESULTS))
+ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step onpolicy onpolicy-1step,$(notdir $(VWM_RUN))-$(s))
+KEPT_RESULTS := $(sort $(VSHARED) $(VRESULTS))
+# A kept on-policy teacher stands for its recording too (the 9 MB store of small chunk files is not kept).
 restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
-	@for name in $(ARTIFACT_STAGES); do \
+	@if [ -f $(ARTIFACTS)/$(notdir $(VWM_RUN))-onpolicy.ckpt ] && [ ! -e $(VWM_RUN)-opt-episodes.done ]; then \
+	  touch $(VWM_RUN)-opt-episodes.done; fi; \
+	for name in $(ARTIFACT_STAGES); do \
 	  last=$(RUN_DIR)/$$name/checkpoints/last.ckpt; \
 	  for kind in ckpt resume.ckpt; do \
 	    src=$(ARTIFACTS)/$$name.$$kind; [ -f $$src ] || continue; \
@@ -376,11 +381,11 @@ restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then touch $(RUN_DIR)/$$name.done; fi; \
 	  done; \
 	done; \
-	for src in $(ARTIFACT_RESULTS)/*/; do \
-	  [ -d $$src ] || continue; dst=$(VRESULTS)/$$(basename $$src); \
-	  if [ -e $$dst ]; then echo "kept $$dst"; else mkdir -p $(VRESULTS) && cp -r $$src $$dst && echo "restored $$dst"; \
+	for res in $(KEPT_RESULTS); do for src in $(ARTIFACTS)/results/$$(basename $$res)/*/; do \
+	  [ -d $$src ] || continue; dst=$$res/$$(basename $$src); \
+	  if [ -e $$dst ]; then echo "kept $$dst"; else mkdir -p $$res && cp -r $$src $$dst && echo "restored $$dst"; \
 	    find $$dst -name summary.json -exec touch {} +; fi; \
-	done
+	done; done
 
 # keep-vision: the other way, before a sitting ends: each finished stage exported into artifacts/ (and its runs/ copy
 # replaced by the export, the trained file kept beside as trained.ckpt, so results measured from here on key on the
@@ -402,11 +407,11 @@ keep-vision: | $(STAMP)
 	    cp $$dir/last.ckpt $(ARTIFACTS)/$$name.resume.ckpt && echo "kept $(ARTIFACTS)/$$name.resume.ckpt (resumes)"; \
 	  fi; \
 	done; \
-	for src in $(VRESULTS)/*/; do \
+	for res in $(KEPT_RESULTS); do for src in $$res/*/; do \
 	  [ -d $$src/.groups ] || [ -f $$src/summary.json ] || continue; \
-	  dst=$(ARTIFACT_RESULTS)/$$(basename $$src); rm -rf $$dst.new && mkdir -p $$dst.new && \
+	  dst=$(ARTIFACTS)/results/$$(basename $$res)/$$(basename $$src); rm -rf $$dst.new && mkdir -p $$dst.new && \
 	  cp -r $$src/. $$dst.new/ && find $$dst.new -name '*.mp4' -delete && rm -rf $$dst && mv $$dst.new $$dst; \
-	done
+	done; done
 
 # probe-opt-vision: GPC-OPT (the VRECORD planner) with the chosen visual model on validation seeds, every ascent iterate
 # replayed in the true simulator: predicted against true gain, the share of fooled ascents (docs/results.md).

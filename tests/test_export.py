@@ -114,6 +114,7 @@ def test_make_restore_vision_marks_exports_done_and_leaves_trainings_to_resume(c
     (runs / "reward" / "checkpoints").mkdir(parents=True)
     (runs / "reward" / "checkpoints" / "last.ckpt").write_bytes(b"the user's own run")
     shutil.copy(art / "vpolicy.ckpt", art / "reward.ckpt")  # stands for an exported reward: never copied over theirs
+    assert gpc("export", ckpts["wm"], "--out", art / "wm-visual-onpolicy.ckpt").exit_code == 0  # the on-policy teacher
     for store in ("expert", "explore"):
         (runs / f"{store}.done").touch()
     venv = Path(sys.executable).parent.parent
@@ -125,6 +126,10 @@ def test_make_restore_vision_marks_exports_done_and_leaves_trainings_to_resume(c
     assert (runs / "reward" / "checkpoints" / "last.ckpt").read_bytes() == b"the user's own run"
     assert (runs / "vpolicy.done").exists() and not (runs / "wm-visual-phase1.done").exists()
     assert not (runs / "reward.done").exists()
+    # a kept on-policy teacher is a finished stage that stands for its recording (whose store is not kept)
+    recorded, tuned = runs / "wm-visual-opt-episodes.done", runs / "wm-visual-onpolicy.done"
+    assert tuned.exists() and recorded.stat().st_mtime_ns <= tuned.stat().st_mtime_ns
+    assert not (runs / "wm-visual-opt-episodes.zarr").exists()
     # the restored policy stage is up to date (make -q: nothing to run); the half-way training is not
     assert subprocess.run([*make, "-q", str(runs / "vpolicy.done")], cwd=ROOT).returncode == 0
     assert subprocess.run([*make, "-q", str(runs / "wm-visual-phase1.done")], cwd=ROOT).returncode == 1
@@ -157,6 +162,12 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
     stamp = (art / "vpolicy.ckpt").stat().st_mtime_ns
     assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
     assert (art / "vpolicy.ckpt").stat().st_mtime_ns == stamp  # already kept: not exported again
+    onpolicy = tmp_path / "results-vision-onpolicy" / "vopt-M2"  # another model's rows, beside the shared BC
+    (onpolicy / ".groups").mkdir(parents=True)
+    (onpolicy / ".groups" / "0.json").write_text("{}")
+    assert subprocess.run([*make, "keep-vision", "VWM_PLAN=onpolicy"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
+    assert (art / "results" / "results-vision-onpolicy" / "vopt-M2" / ".groups" / "0.json").exists()
+    assert (art / "results" / "results-vision" / "bc" / "summary.json").exists()
     fresh = tmp_path / "fresh"
     fresh.mkdir()
     shutil.rmtree(tmp_path / "results-vision")
