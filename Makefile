@@ -369,16 +369,18 @@ reproduce-pusht-vision: $(VTABLE)
 ARTIFACTS := artifacts/pusht-$(PROFILE)
 ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step onpolicy onpolicy-1step,$(notdir $(VWM_RUN))-$(s))
 KEPT_RESULTS := $(sort $(VSHARED) $(VRESULTS))
-# A kept on-policy teacher stands for its recording too (the 9 MB store of small chunk files is not kept).
+# A kept on-policy teacher stands for its recording too (the 9 MB store of small chunk files is not kept): that stamp
+# goes after those of the stages it was recorded with and before the teacher's.
+RECORDED_STAGE := $(notdir $(VWM_RUN))-onpolicy
 restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
-	@if [ -f $(ARTIFACTS)/$(notdir $(VWM_RUN))-onpolicy.ckpt ] && [ ! -e $(VWM_RUN)-opt-episodes.done ]; then \
-	  touch $(VWM_RUN)-opt-episodes.done; fi; \
-	for name in $(ARTIFACT_STAGES); do \
+	@for name in $(ARTIFACT_STAGES); do \
 	  last=$(RUN_DIR)/$$name/checkpoints/last.ckpt; \
 	  for kind in ckpt resume.ckpt; do \
 	    src=$(ARTIFACTS)/$$name.$$kind; [ -f $$src ] || continue; \
 	    if [ -e $$last ]; then echo "kept $$last"; else mkdir -p $$(dirname $$last) && cp $$src $$last && echo "restored $$last"; fi; \
-	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then touch $(RUN_DIR)/$$name.done; fi; \
+	    if [ $$kind = ckpt ] && cmp -s $$src $$last; then \
+	      if [ $$name = $(RECORDED_STAGE) ] && [ ! -e $(VWM_RUN)-opt-episodes.done ]; then touch $(VWM_RUN)-opt-episodes.done; fi; \
+	      touch $(RUN_DIR)/$$name.done; fi; \
 	  done; \
 	done; \
 	for res in $(KEPT_RESULTS); do for src in $(ARTIFACTS)/results/$$(basename $$res)/*/; do \
