@@ -162,7 +162,7 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher|onpolicy)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
 	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) into artifacts/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
