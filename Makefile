@@ -18,10 +18,11 @@ EXPLORE ?= 1
 # GOAL=random: GPC's variant, a goal pose drawn per seed: the policy is trained on expert
 # demonstrations towards random goals and reads the goal; the world model (goal-agnostic) is shared.
 GOAL ?= fixed
-# VWM_PLAN: the visual world model the vision planners use, student (its one-step distillation, the default),
-# teacher (the trained model's 3-step sampler) or onpolicy (the teacher fine-tuned on GPC-OPT's own recorded episodes
-# as well, then distilled again: the model trained where the planner goes); each has its own results.
-VWM_PLAN ?= student
+# VWM_PLAN: the visual world model the vision planners use: onpolicy (the default, chosen on validation seeds: the
+# trained model fine-tuned on GPC-OPT's own recorded episodes as well, then distilled to one step: the model trained
+# where the planner goes), student (the trained model's one-step distillation, which records those episodes) or
+# teacher (the trained model's 3-step sampler); each has its own results.
+VWM_PLAN ?= onpolicy
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
   POLICY_DIR := $(RUN_DIR)/policy-random-goal
@@ -149,7 +150,7 @@ else ifeq ($(PROFILE),cpu)
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
-  # VWM_PLAN=onpolicy: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
+  # The on-policy model: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 50 --batch 10
   VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-auto --val-every 1000
@@ -162,7 +163,7 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=teacher|onpolicy)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=student|teacher)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
 	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) into artifacts/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
@@ -292,7 +293,7 @@ endif
 # BC and the ceiling read no world model, so every VWM_PLAN's table shares them.
 VSHARED := $(RESULTS)-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
-VTABLE := $(if $(filter cpu1student,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
+VTABLE := $(if $(filter cpu1onpolicy,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
 
 $(RUN_DIR)/vpolicy.done: $(VPOLICY_DEPS) | $(STAMP)
@@ -324,7 +325,7 @@ $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	  --out $(RUN_DIR)/reward $$resume
 	touch $@
 
-# VWM_PLAN=onpolicy: the student plans with GPC-OPT on training seeds, executing each ascended chunk whole (`gpc record`:
+# The on-policy model (VWM_PLAN=onpolicy): the student plans with GPC-OPT on training seeds, executing each ascended chunk whole (`gpc record`:
 # every action the reward judged, with its true outcome); the teacher is fine-tuned on those episodes beside its own
 # data, then distilled again.
 VRECORDED := $(VWM_RUN)-opt-episodes.zarr

@@ -163,10 +163,10 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
     stamp = (art / "vpolicy.ckpt").stat().st_mtime_ns
     assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
     assert (art / "vpolicy.ckpt").stat().st_mtime_ns == stamp  # already kept: not exported again
-    onpolicy = tmp_path / "results-vision-onpolicy" / "vopt-M2"  # another model's rows, beside the shared BC
+    onpolicy = tmp_path / "results-vision-onpolicy" / "vopt-M2"  # the default model's rows (VWM_PLAN=onpolicy), beside the shared BC
     (onpolicy / ".groups").mkdir(parents=True)
     (onpolicy / ".groups" / "0.json").write_text("{}")
-    assert subprocess.run([*make, "keep-vision", "VWM_PLAN=onpolicy"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
+    assert subprocess.run([*make, "keep-vision"], cwd=ROOT, capture_output=True, timeout=300).returncode == 0
     assert (art / "results" / "results-vision-onpolicy" / "vopt-M2" / ".groups" / "0.json").exists()
     assert (art / "results" / "results-vision" / "bc" / "summary.json").exists()
     fresh = tmp_path / "fresh"

@@ -15,13 +15,13 @@ from gpc.datasets.store import EpisodeStore
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def assert_table_is_what_was_measured(table: dict, md: str, results: Path, runs: list[str]) -> None:
+def assert_table_is_what_was_measured(table: dict, md: str, runs: list[Path]) -> None:
     """Each row holds its own run's measured mean score, and its paired difference is the mean of the per-seed
-    differences to BC recomputed here from the episode files; the Markdown prints those figures."""
-    bc = {r["seed"]: r["score"] for r in json.loads((results / "bc" / "episodes.json").read_text())}
-    for row, name in zip(table["rows"], runs):
-        episodes = {r["seed"]: r["score"] for r in json.loads((results / name / "episodes.json").read_text())}
-        summary = json.loads((results / name / "summary.json").read_text())
+    differences to BC (the first run) recomputed here from the episode files; the Markdown prints those figures."""
+    bc = {r["seed"]: r["score"] for r in json.loads((runs[0] / "episodes.json").read_text())}
+    for row, run in zip(table["rows"], runs, strict=True):
+        episodes = {r["seed"]: r["score"] for r in json.loads((run / "episodes.json").read_text())}
+        summary = json.loads((run / "summary.json").read_text())
         assert sorted(episodes) == sorted(bc) and row["seeds"] == len(bc)
         assert row["score"] == pytest.approx(summary["mean_score"]) == pytest.approx(sum(episodes.values()) / len(bc))
         assert row["score_diff"] == pytest.approx(sum(episodes[s] - bc[s] for s in bc) / len(bc))
@@ -45,8 +45,8 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     labels = [r["label"] for r in table["rows"]]
     assert labels == ["bc", "rank K=4", "opt M=3", "rank-opt 4x3", "cem 8x2", "mppi 8x2", "grad 4x3", "gt-sim K=4"]
     md = (tmp_path / "results" / "pusht_state.md").read_text()
-    assert_table_is_what_was_measured(table, md, tmp_path / "results", ["bc", "rank-K4", "opt-M3", "rank-opt-4x3",
-                                                                         "cem-8x2", "mppi-8x2", "grad-4x3", "gt-sim-K4"])
+    assert_table_is_what_was_measured(table, md, [tmp_path / "results" / n for n in (
+        "bc", "rank-K4", "opt-M3", "rank-opt-4x3", "cem-8x2", "mppi-8x2", "grad-4x3", "gt-sim-K4")])
     assert (tmp_path / "results" / "pusht_state.png").stat().st_size > 1000
     outputs = sorted((tmp_path / "results").rglob("summary.json")) + [tmp_path / "runs" / "expert.zarr" / "zarr.json"]
     stamps = {p: p.stat().st_mtime_ns for p in outputs if p.exists()}
@@ -62,40 +62,40 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
     vision = subprocess.run(vargs, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
-    table = json.loads((tmp_path / "results-vision" / "pusht_vision.json").read_text())
+    # the default model (VWM_PLAN=onpolicy) has its own rows; BC and the ceiling read none, so every model's table shares them
+    vres, shared = tmp_path / "results-vision-onpolicy", tmp_path / "results-vision"
+    table = json.loads((vres / "pusht_vision.json").read_text())
     assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3", "opt M=2", "gt-sim K=3"]
-    assert_table_is_what_was_measured(table, (tmp_path / "results-vision" / "pusht_vision.md").read_text(),
-                                      tmp_path / "results-vision", ["bc", "vrank-K3", "vopt-M2", "vgt-sim-K3"])
-    assert table["rows"][-1]["label"] == "gt-sim K=3" and "gap closed" in (tmp_path / "results-vision" / "pusht_vision.md").read_text()
+    assert_table_is_what_was_measured(table, (vres / "pusht_vision.md").read_text(),
+                                      [shared / "bc", vres / "vrank-K3", vres / "vopt-M2", shared / "vgt-sim-K3"])
+    assert "gap closed" in (vres / "pusht_vision.md").read_text()
     runs = tmp_path / "runs"
     phase2 = json.loads((runs / "wm-visual-phase2" / "run.json").read_text())
     assert phase2["init"] == str(runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt")  # one schedule: no restarts
     student = json.loads((runs / "wm-visual-1step" / "run.json").read_text())
     assert student["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt")
     assert student["config"]["distill_from"] == student["init"] and student["config"]["dynamics"]["sampler"]["steps"] == 1
-    planned = json.loads((tmp_path / "results-vision" / "vopt-M2" / "summary.json").read_text())["run"]["controller"]
-    assert planned["world_model"] == str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")  # the student plans
-    teacher = subprocess.run(vargs + ["VWM_PLAN=teacher", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert teacher.returncode == 0 and "--world-model " + str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") in teacher.stdout
-    assert "wm-visual-1step" not in teacher.stdout and "results-vision-teacher" in teacher.stdout
-    # VWM_PLAN=onpolicy: GPC-OPT's own episodes recorded, the teacher fine-tuned on them too, then distilled again
-    onpolicy = subprocess.run(vargs[:2] + [str(runs / "wm-visual-onpolicy-1step.done")] + vargs[3:] + ["VWM_PLAN=onpolicy"],
-                              cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert onpolicy.returncode == 0, onpolicy.stdout[-2000:] + onpolicy.stderr[-2000:]
+    # the on-policy model: GPC-OPT's own episodes recorded with the student, the teacher fine-tuned on them too, then
+    # distilled again; that model plans
     recorded = runs / "wm-visual-opt-episodes.zarr"
     assert EpisodeStore.open(recorded).attrs["collector"]["world_model"] == str(
-        runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")  # recorded with the student the planners use
+        runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")
     tuned = json.loads((runs / "wm-visual-onpolicy" / "run.json").read_text())
     assert tuned["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") and str(recorded) in tuned["datasets"]
     assert json.loads((runs / "wm-visual-onpolicy-1step" / "run.json").read_text())["init"] == str(
         runs / "wm-visual-onpolicy" / "checkpoints" / "last.ckpt")
-    table = subprocess.run(vargs + ["VWM_PLAN=onpolicy", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert "--world-model " + str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt") in table.stdout
-    assert "results-vision-onpolicy" in table.stdout
-    probe = subprocess.run(vargs[:2] + ["probe-opt-vision"] + vargs[3:] + ["VWM_PLAN=onpolicy"], cwd=ROOT,
+    planned = json.loads((vres / "vopt-M2" / "summary.json").read_text())["run"]["controller"]
+    assert planned["world_model"] == str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt")
+    plain = subprocess.run(vargs + ["VWM_PLAN=student", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert plain.returncode == 0 and "--world-model " + str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt") in plain.stdout
+    assert str(shared / "vopt-M2") in plain.stdout and "--planner gt-sim" not in plain.stdout  # the ceiling is shared
+    teacher = subprocess.run(vargs + ["VWM_PLAN=teacher", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert teacher.returncode == 0 and "--world-model " + str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") in teacher.stdout
+    assert "wm-visual-1step" not in teacher.stdout and "results-vision-teacher" in teacher.stdout
+    probe = subprocess.run(vargs[:2] + ["probe-opt-vision"] + vargs[3:], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert probe.returncode == 0, probe.stdout[-2000:] + probe.stderr[-2000:]
-    probed = json.loads((tmp_path / "results-vision-onpolicy" / "ascent-vopt-M2.json").read_text())
+    probed = json.loads((vres / "ascent-vopt-M2.json").read_text())
     assert probed["decisions"] > 0 and probed["steps"] == 2  # GPC-OPT M=2 with the on-policy student, replayed
 
     (tmp_path / "runs" / "wm-phase2.done").touch()  # a newer world model makes its planners stale, not the ceiling
