@@ -325,9 +325,9 @@ $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	  --out $(RUN_DIR)/reward $$resume
 	touch $@
 
-# The on-policy model (VWM_PLAN=onpolicy): the student plans with GPC-OPT on training seeds, executing each ascended chunk whole (`gpc record`:
-# every action the reward judged, with its true outcome); the teacher is fine-tuned on those episodes beside its own
-# data, then distilled again.
+# The on-policy model (VWM_PLAN=onpolicy): the student plans with GPC-OPT on training seeds, executing each ascended
+# chunk whole (`gpc record`: every action the reward judged, with its true outcome); the teacher is fine-tuned on those
+# episodes beside its own data, then distilled again.
 VRECORDED := $(VWM_RUN)-opt-episodes.zarr
 VONPOLICY_CKPT := $(VWM_RUN)-onpolicy/checkpoints/last.ckpt
 $(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RUN_DIR)/reward.done
