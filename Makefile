@@ -139,8 +139,9 @@ else ifeq ($(PROFILE),cpu)
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
   # The vision table (issue 19): an image policy on the human demonstrations, the visual world model in one
-  # schedule (phase 1 then phase 2, about 2.8 h here) and its one-step student, 100 test seeds; the image
-  # policy 9,000 steps (0.55 s each on 2 cores: about 82 minutes).
+  # schedule (phase 1 then phase 2: about 2.8 h on a machine with native bf16, 5 h on an AVX2 one), fine-tuned on
+  # GPC-OPT's own episodes and distilled to one step, 100 test seeds; the image policy 9,000 steps (0.55 s each on
+  # 2 cores with native bf16, about 82 minutes; 1.0 s on AVX2).
   VPOLICY := --profile cpu --max-steps 9000
   VPOLICY_DATA := $(HUMAN_DATA)
   VWM1 := --profile cpu --max-steps 38000 --precision bf16-auto --val-every 5000
@@ -163,7 +164,7 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=student|teacher)"
+	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
 	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) into artifacts/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
