@@ -291,10 +291,15 @@ else ifeq ($(VWM_PLAN),onpolicy)
 else
   $(error VWM_PLAN=$(VWM_PLAN): use student, teacher or onpolicy)
 endif
+# The visual model asks for bf16 rollouts, which run where the hardware computes bf16 natively: other numbers than
+# float32's. Its planners pin float32 (every row of the table was measured so), so their results do not depend on the
+# machine and kept ones resume on any; VPRECISION=bf16-auto is faster where bf16 is native (its own results folder).
+VPRECISION ?= 32-true
+VRESULTS := $(VRESULTS)$(if $(filter-out 32-true,$(VPRECISION)),-$(VPRECISION))
 # BC and the ceiling read no world model, so every VWM_PLAN's table shares them.
 VSHARED := $(RESULTS)-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
-VTABLE := $(if $(filter cpu1onpolicy,$(PROFILE)$(EXPLORE)$(VWM_PLAN)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
+VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
 
 $(RUN_DIR)/vpolicy.done: $(VPOLICY_DEPS) | $(STAMP)
@@ -333,7 +338,7 @@ VRECORDED := $(VWM_RUN)-opt-episodes.zarr
 VONPOLICY_CKPT := $(VWM_RUN)-onpolicy/checkpoints/last.ckpt
 $(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RUN_DIR)/reward.done
 	$(BIN)/gpc record $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VSTUDENT_CKPT) --reward learned \
-	  --reward-checkpoint $(REWARD_CKPT) $(VRECORD_ARGS) --workers $(WORKERS) --out $(VRECORDED)
+	  --reward-checkpoint $(REWARD_CKPT) --precision $(VPRECISION) $(VRECORD_ARGS) --workers $(WORKERS) --out $(VRECORDED)
 	touch $@
 
 $(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done
@@ -352,7 +357,8 @@ $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done
 $(eval $(call eval_rule,bc,$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
 $(foreach n,$(VPLANNERS),$(eval $(call eval_rule,$(n),$(VRESULTS),$(VDONE),\
-  $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) $(VEVAL))))
+  $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) \
+  --precision $(VPRECISION) $(VEVAL))))
 $(eval $(call eval_rule,$(VCEILING),$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL)))
 
 $(VTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json) $(VSHARED)/$(VCEILING)/summary.json
@@ -422,7 +428,7 @@ keep-vision: | $(STAMP)
 VPROBE := $(VRESULTS)/ascent-$(VRECORD).md
 $(VPROBE): $(VDONE)
 	$(BIN)/gpc eval ascent $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VPLAN_CKPT) --reward learned \
-	  --reward-checkpoint $(REWARD_CKPT) $(VPROBE_ARGS) --out $@
+	  --reward-checkpoint $(REWARD_CKPT) --precision $(VPRECISION) $(VPROBE_ARGS) --out $@
 
 probe-opt-vision: $(VPROBE)
 	@cat $(VPROBE)

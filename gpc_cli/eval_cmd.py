@@ -32,6 +32,7 @@ VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm
 VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
 Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+RolloutPrecision = Annotated[str, typer.Option("--precision", help="The world model's rollouts: bf16-auto (bf16 where the model asks for it and the hardware computes it), 32-true (float32 on every machine: the same numbers) or bf16-mixed.")]
 ActionSteps = Annotated[int | None, typer.Option("--action-steps", min=1, help="Planners: actions executed per decision (default: the policy's n_action_steps; at most the chunk the planner scores).")]
 PolicyFormat = Annotated[str | None, typer.Option("--policy-format", help="gpc, lerobot or diffusion_policy (default: detected).")]
 PolicyTask = Annotated[str | None, typer.Option("--task", help="Task a LeRobot or Diffusion Policy checkpoint acts in (default: pusht; a gpc checkpoint names its own).")]
@@ -49,7 +50,7 @@ PLANNING_OPTIONS = (
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
     ("spacing", Spacing, None), ("policy_format", PolicyFormat, None), ("task", PolicyTask, None),
-    ("action_steps", ActionSteps, None),
+    ("action_steps", ActionSteps, None), ("precision", RolloutPrecision, "bf16-auto"),
 )
 with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
@@ -73,7 +74,7 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,
                        keep_futures=keep_futures, task=o["task"], policy_format=o["policy_format"],
-                       action_steps=o["action_steps"])
+                       action_steps=o["action_steps"], precision=o["precision"])
 
 
 @eval_app.command("run")

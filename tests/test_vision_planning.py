@@ -68,6 +68,19 @@ def test_vision_pipeline_plans_with_frames(tiny_pusht, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["controller"]["controller"] == "rank K=3" and 0.0 <= summary["mean_score"] <= 1.0
     assert set(summary["time_share"]) == {"policy", "world_model", "reward"}
+    # rollouts' precision is part of the run: float32 (this model does not ask for bf16) is recorded by omission, so a
+    # pinned 32-true run resumes it, and bf16 rollouts (other numbers) are refused in one line that says so
+    assert "rollouts" not in summary["controller"]
+    again = ["eval", str(policy.last), "--planner", "rank", "-K", "3", "--world-model", str(wm.last), "--reward", "learned",
+             "--reward-checkpoint", str(reward.last), "--seeds", "100000:100002", "--max-steps", "16", "--batch", "2",
+             "--out", str(out), "--resume"]
+    assert CliRunner().invoke(app, [*again, "--precision", "32-true"]).exit_code == 0
+    before = (out / "summary.json").read_bytes()
+    mixed = CliRunner().invoke(app, [*again, "--precision", "bf16-mixed"])
+    assert mixed.exit_code != 0 and len(mixed.output.strip().splitlines()) == 1
+    assert "controller.rollouts: absent there, bfloat16 here" in mixed.output and (out / "summary.json").read_bytes() == before
+    wrong = CliRunner().invoke(app, [*again, "--precision", "bf16"])
+    assert wrong.exit_code != 0 and "--precision 'bf16': use one of bf16-auto, 32-true, bf16-mixed" in wrong.output
     # the vision ceiling: the true simulator ranks the image policy's proposals, and delivers what it predicted
     vision_ceiling_delivers_its_predictions(PolicyModule.load_from_checkpoint(policy.last))
     ceiling = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "gt-sim", "-K", "3", "--seeds", "100000:100002",

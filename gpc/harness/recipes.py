@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from gpc.datasets.errors import DataError
+from gpc.models.networks.precision import check_rollout_precision
 from gpc.models.planning.config import WITH_GRADIENTS, PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
 from gpc.models.policy.controller import PolicyController
@@ -91,8 +92,11 @@ class PlannerRecipe:
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     task: str | None = None
     policy_format: str | None = None  # gpc | lerobot | diffusion_policy (None: detected)
+    precision: str = "bf16-auto"  # the world model's rollouts (networks.precision.ROLLOUT_PRECISIONS)
+    rollouts: str = "float32"  # the dtype they run in here, as make_recipe found it: results record it (bf16 changes the numbers)
 
     def __post_init__(self) -> None:
+        check_rollout_precision(self.precision)
         if self.planner is not None and not self.world_model:
             raise ValueError(f"--planner {self.planner.kind} needs --world-model CKPT (or --world-model {GT_SIM})")
         if self.world_model == GT_SIM and self.planner is not None and self.planner.uses_gradients:
@@ -117,6 +121,8 @@ class PlannerRecipe:
         task = get_task(policy.config.task)
         world_model = load_world_model(self.world_model, task)
         check_pairing(policy, world_model, self.world_model)
+        if hasattr(world_model, "set_rollout_precision"):  # the simulator (gt-sim) has none
+            world_model.set_rollout_precision(self.precision)
         box = task.layout.action
         config = dataclasses.replace(self.planner, action_low=box.low, action_high=box.high)
         return Planner(config, world_model, build_reward(self.reward, task), policy, self.sampling)
@@ -130,19 +136,22 @@ class PlannerRecipe:
             planner = {key: value for key, value in dataclasses.asdict(self.planner).items()
                        if key not in LATER_DEFAULTS or value != LATER_DEFAULTS[key]}
             out.update(planner=planner, world_model=self.world_model, reward=self.reward.kind)
+            if self.rollouts != "float32":  # left out at float32, which every result before this setting used
+                out["rollouts"] = self.rollouts
         return out
 
 
 def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
                 m: int | None = None, lr: float = 2.0, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
                 sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
-                task: str | None = None, policy_format: str | None = None, action_steps: int | None = None) -> PlannerRecipe:
+                task: str | None = None, policy_format: str | None = None, action_steps: int | None = None,
+                precision: str = "bf16-auto") -> PlannerRecipe:
     """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
     ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``,
-    ``knots``).
+    ``knots``). ``precision``: the world model's rollouts (``bf16-auto``, ``32-true``, ``bf16-mixed``).
     The checkpoints are opened and the controller built once here, so a mismatched world model,
     reward or goal mode fails now, in one line, before any episode runs.
     """
@@ -170,7 +179,7 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     if planner == BC:
         if world_model or k or m or action_steps:
             raise ValueError("--world-model, --K, --M and --action-steps apply to a --planner (bc is the policy alone)")
-        return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format)
+        return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format, precision=precision)
     kind = "rank" if planner == GT_SIM else planner
     if planner == GT_SIM:
         if world_model not in (None, GT_SIM):
@@ -182,6 +191,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
                            action_low=box.low, action_high=box.high, keep_futures=keep_futures, action_steps=action_steps,
                            **(ascent or {}))
 
-    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format)
-    recipe()  # build it once here: a mismatched world model or reward fails now, in one line
-    return recipe
+    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format, precision)
+    controller = recipe()  # build it once here: a mismatched world model or reward fails now, in one line
+    set_precision = getattr(getattr(controller, "world_model", None), "set_rollout_precision", None)  # not BC's, nor gt-sim's
+    rollouts = set_precision(precision) if set_precision is not None else "float32"
+    return dataclasses.replace(recipe, rollouts=rollouts)

@@ -35,6 +35,14 @@ RESULT_FILES = ("episodes.json", "summary.json", "summary.md")
 NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size")  # settings the scores do not depend on
 
 
+class _Absent:
+    def __repr__(self) -> str:
+        return "absent"
+
+
+ABSENT = _Absent()  # a key one run identity has and the other lacks
+
+
 def _digest(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -64,6 +72,16 @@ def _held(out: Path) -> Any:
     return None
 
 
+def first_difference(held: Any, given: Any, path: str = "") -> str:
+    """Where two run identities first differ, e.g. ``controller.rollouts: float32 there, bfloat16 here``."""
+    if isinstance(held, dict) and isinstance(given, dict):
+        for key in sorted(set(held) | set(given)):
+            if held.get(key, ABSENT) != given.get(key, ABSENT):
+                return first_difference(held.get(key, ABSENT), given.get(key, ABSENT), f"{path}.{key}" if path else key)
+    shown = [value if value is ABSENT or len(repr(value)) <= 60 else "differs" for value in (held, given)]
+    return f"{path or 'run'}: {shown[0]} there, {shown[1]} here"
+
+
 def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> None:
     """Refuse, reading only, results ``out`` holds that this run may not touch.
 
@@ -74,7 +92,7 @@ def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: 
     same = held == identity
     if held is not None and not (resume and same) and not overwrite:
         if resume:
-            raise DataError(f"{out}: holds results of another run (other settings, controller or checkpoints); "
+            raise DataError(f"{out}: holds results of another run ({first_difference(held, identity)}); "
                             "--resume only finishes the same run (pass --overwrite to replace them)")
         raise DataError(f"{out}: already holds results; pass --resume to finish the same run or --overwrite to "
                         "replace them, or choose another --out")

@@ -30,6 +30,7 @@ from gpc.datasets.datamodule import DataConfig, EpisodeDataModule
 from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
+from gpc.models.networks.precision import check_rollout_precision
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import TrainableModule
 from gpc.models.world_models.config import (
@@ -76,6 +77,18 @@ class WorldModelModule(TrainableModule):
         history = torch.as_tensor(history, dtype=torch.float32, device=self.device)
         actions = torch.as_tensor(actions, dtype=torch.float32, device=self.device)
         return self.dynamics.rollout(history, actions, **options)
+
+    def set_rollout_precision(self, precision: str) -> str:
+        """Rollouts at ``precision`` (``gpc.models.networks.precision.ROLLOUT_PRECISIONS``) from now on.
+
+        Returns the dtype they run in on this device, ``bfloat16`` or ``float32``: it changes the numbers, so
+        results record it. A state model always rolls out in float32.
+        """
+        check_rollout_precision(precision)
+        if isinstance(self.dynamics, VisualDynamics):
+            self.dynamics.precision = precision
+            return "bfloat16" if self.dynamics.bf16(self.device.type) else "float32"
+        return "float32"
 
     # ------------------------------------------------------------------ the training contract
     @property

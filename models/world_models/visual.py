@@ -29,7 +29,7 @@ from torch import nn
 
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.models.networks.edm import Denoiser, EulerConfig, EulerSampler
-from gpc.models.networks.precision import native_bf16
+from gpc.models.networks.precision import rollout_bf16
 from gpc.models.networks.unet2d import InnerUNet
 from gpc.models.world_models.config import FEEDBACK, IMAGE_KEY, VisualDynamicsConfig, VisualWorldModelConfig
 
@@ -64,6 +64,7 @@ class VisualDynamics(nn.Module):
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s * (hi - lo) + lo  # pixel centres in action units
         self.register_buffer("pixel_centres", centres, persistent=False)
         self._warned: set[int] = set()
+        self.precision = "bf16-auto"  # rollouts' precision (networks.precision.ROLLOUT_PRECISIONS); planners may pin it
         if config.channels_last:  # loading weights copies into these tensors and keeps their layout
             self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stubs omit the keyword
 
@@ -75,6 +76,10 @@ class VisualDynamics(nn.Module):
     @property
     def n_obs_steps(self) -> int:
         return self.config.n_obs_steps
+
+    def bf16(self, device_type: str) -> bool:
+        """Whether rollouts on ``device_type`` run under bf16 autocast (emulated bf16 is slower than float32)."""
+        return rollout_bf16(self.config.bf16, self.precision, device_type)
 
     def check_normalizer(self) -> None:
         if ACTION_KEY not in self.normalizer.keys():
@@ -166,8 +171,7 @@ class VisualDynamics(nn.Module):
         if not bool(torch.isfinite(context).all()) or not bool(torch.isfinite(actions).all()):
             raise ValueError("history or actions hold NaN or inf")
         use = actions.shape[1] // c.frameskip * c.frameskip
-        bf16 = c.bf16 and native_bf16(actions.device.type)  # emulated bf16 is slower than float32
-        autocast = torch.autocast(actions.device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
+        autocast = torch.autocast(actions.device.type, dtype=torch.bfloat16) if self.bf16(actions.device.type) else nullcontext()
         with autocast:
             frames = self.unroll(context * 2.0 - 1.0, actions[:, :use], noise, generator)
         return ((frames.float() + 1.0) / 2.0).clamp(0.0, 1.0)
