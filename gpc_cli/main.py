@@ -184,10 +184,12 @@ def main() -> None:
     import logging
 
     from gpc.harness.interrupts import deferred_signals
+    from gpc.harness.memory import keep_freed_memory
 
     # Zarr writes chunks on its own event loop; after a failed write (a full disk) the chunks still pending
     # would be reported at exit as "Task was destroyed but it is pending!" below gpc's one line.
     logging.getLogger("asyncio").setLevel(logging.CRITICAL)
+    keep_freed_memory()  # large tensors would otherwise fault their pages in anew each time (gpc.harness.memory)
 
     with deferred_signals():  # Ctrl-C and SIGTERM stop at the next safe point, with what was kept
         app()

@@ -26,6 +26,7 @@ import torch
 
 from gpc.harness import interrupts
 from gpc.harness.files import write_atomic
+from gpc.harness.memory import keep_freed_memory
 from gpc.models.planning.protocols import Controller, Plan
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import ACTION_KEY, IMAGE_KEY, Task
@@ -201,6 +202,7 @@ _WORKER: dict[str, Any] = {}
 def _init_worker(factory: Callable[[], Controller], threads: int, worker: bool = False, tasks: Sequence[Task] = ()) -> None:
     if worker:
         interrupts.ignore_in_worker()
+        keep_freed_memory()  # a spawned process starts with glibc's defaults again
     for task in tasks:  # tasks the parent registered by hand
         register_task(task)
     torch.set_num_threads(threads)
