@@ -13,13 +13,12 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from gpc.harness.memory import keep_freed_memory
-
-keep_freed_memory()  # the benchmarks time what a gpc process runs, and gpc keeps freed memory (gpc.harness.memory)
-
 
 def median_seconds(fn: Callable[[], object], number: int, repeat: int = 5) -> float:
     """Median over ``repeat`` runs of the mean time of ``number`` calls."""
+    from gpc.harness.memory import keep_freed_memory
+
+    keep_freed_memory()  # time what a gpc process runs: gpc keeps freed memory (gpc.harness.memory, bench_memory)
     fn()  # warm-up
     runs = []
     for _ in range(repeat):

@@ -8,12 +8,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import bench_planners, bench_policy, bench_sim, bench_vision_planners, bench_vlm, bench_world_model  # noqa: E402
+from benchmarks import bench_memory, bench_planners, bench_policy, bench_sim, bench_vision_planners, bench_vlm, bench_world_model  # noqa: E402
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--doc", type=Path, default=None)
-    parser.add_argument("--only", choices=["sim", "policy", "vlm", "world-model", "planners", "vision-planners"], default=None)
+    parser.add_argument("--only", choices=["sim", "policy", "vlm", "world-model", "planners", "vision-planners", "memory"], default=None)
     args = parser.parse_args()
     if args.only in (None, "sim"):
         bench_sim.run(args.doc)
@@ -28,3 +28,5 @@ if __name__ == "__main__":
         bench_planners.run(args.doc)
     if args.only in (None, "vision-planners"):
         bench_vision_planners.run(args.doc)
+    if args.only in (None, "memory"):
+        bench_memory.run(args.doc)
