@@ -296,8 +296,9 @@ endif
 # machine and kept ones resume on any; VPRECISION=bf16-auto is faster where bf16 is native (its own results folder).
 VPRECISION ?= 32-true
 VRESULTS := $(VRESULTS)$(if $(filter-out 32-true,$(VPRECISION)),-$(VPRECISION))
-# BC and the ceiling read no world model, so every VWM_PLAN's table shares them.
-VSHARED := $(RESULTS)-vision
+# BC and the ceiling read no world model, so every VWM_PLAN's table shares them, and so does the exploration ablation
+# (EXPLORE=0 retrains only the world model): one BC and one ceiling per profile and goal.
+VSHARED := $(if $(filter 0,$(EXPLORE)),results/pusht-$(PROFILE)$(GOAL_TAG),$(RESULTS))-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
 VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
