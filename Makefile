@@ -12,7 +12,7 @@ TEST_WORKERS ?= 2
 RUN_DIR ?= runs/pusht-$(PROFILE)
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
 HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
-# SEEDS=START:STOP overrides the profile's test seeds (cpu: 100000:100100).
+# SEEDS=START:STOP overrides the test seeds of every profile (cpu and paper: 100000:100100; smoke: a few).
 # EXPLORE=0: the paper's ablation, the world model trained on expert data only (own runs and results).
 EXPLORE ?= 1
 # GOAL=random: GPC's variant, a goal pose drawn per seed: the policy is trained on expert
@@ -23,6 +23,15 @@ GOAL ?= fixed
 # where the planner goes), student (the trained model's one-step distillation, which records those episodes) or
 # teacher (the trained model's 3-step sampler); each has its own results.
 VWM_PLAN ?= onpolicy
+# VWM_PRECISION: the visual model's training precision (cpu profile). bf16-auto trains in bf16 where the CPU computes it
+# natively (about 1.7x faster on 2 cores), else float32. The kept models (artifacts/) trained in float32 on an AVX2 machine, so an
+# ablation beside them trains with VWM_PRECISION=32-true: one difference between its arms, the data.
+VWM_PRECISION ?= bf16-auto
+ifneq ($(GOAL),fixed)
+  ifneq ($(filter %vision,$(MAKECMDGOALS)),)
+    $(error GOAL=$(GOAL): the vision pipeline has fixed goals only (its image policy reads no goal); drop GOAL)
+  endif
+endif
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
   POLICY_DIR := $(RUN_DIR)/policy-random-goal
@@ -64,7 +73,7 @@ ifeq ($(PROFILE),smoke)
   POLICY := --profile tiny --max-steps 40
   WM1 := --profile tiny --max-steps 40
   WM2 := --profile tiny --max-steps 10
-  EVAL := --seeds 100000:100004 --max-steps 40 --batch 4
+  EVAL := --seeds $(or $(SEEDS),100000:100004) --max-steps 40 --batch 4
   PLANNERS := rank-K4 opt-M3 rank-opt-4x3 cem-8x2 mppi-8x2 grad-4x3
   ARGS.rank-K4 := --planner rank -K 4
   ARGS.opt-M3 := --planner opt -M 3
@@ -80,7 +89,7 @@ ifeq ($(PROFILE),smoke)
   VWM2 := --profile tiny --max-steps 4
   VDISTILL := --profile tiny --max-steps 4
   VREWARD := --profile tiny --max-steps 10
-  VEVAL := --seeds 100000:100002 --max-steps 16 --batch 2
+  VEVAL := --seeds $(or $(SEEDS),100000:100002) --max-steps 16 --batch 2
   VPLANNERS := vrank-K3 vopt-M2
   ARGS.vrank-K3 := --planner rank -K 3
   ARGS.vopt-M2 := --planner opt -M 2
@@ -96,7 +105,7 @@ else ifeq ($(PROFILE),paper)
   POLICY := --profile paper
   WM1 := --profile cpu
   WM2 := --profile cpu
-  EVAL := --seeds 100000:100100 --batch 50
+  EVAL := --seeds $(or $(SEEDS),100000:100100) --batch 50
   PLANNERS := rank-K100 rank-K1000 opt-M30 rank-opt-10x30 rank-opt-20x30 cem-100x5 mppi-100x5 grad-100x30
   ARGS.rank-K100 := --planner rank -K 100
   ARGS.rank-K1000 := --planner rank -K 1000
@@ -114,7 +123,7 @@ else ifeq ($(PROFILE),paper)
   VWM2 := --profile paper
   VDISTILL := --profile cpu
   VREWARD := --profile paper
-  VEVAL := --seeds 100000:100100 --batch 50
+  VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 50
   VPLANNERS := $(PAPER_VPLANNERS)
   VCEILING := vgt-sim-K100
   VRECORD := vopt-M25
@@ -144,8 +153,8 @@ else ifeq ($(PROFILE),cpu)
   # 2 cores with native bf16, about 82 minutes; 1.0 s on AVX2).
   VPOLICY := --profile cpu --max-steps 9000
   VPOLICY_DATA := $(HUMAN_DATA)
-  VWM1 := --profile cpu --max-steps 38000 --precision bf16-auto --val-every 5000
-  VWM2 := --profile cpu --max-steps 1000 --precision bf16-auto --val-every 1000
+  VWM1 := --profile cpu --max-steps 38000 --precision $(VWM_PRECISION) --val-every 5000
+  VWM2 := --profile cpu --max-steps 1000 --precision $(VWM_PRECISION) --val-every 1000
   VDISTILL := --profile cpu
   VREWARD := --profile cpu
   VEVAL := --seeds $(or $(SEEDS),100000:100100) --batch 10
@@ -154,7 +163,7 @@ else ifeq ($(PROFILE),cpu)
   # The on-policy model: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 50 --batch 10
-  VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision bf16-auto --val-every 1000
+  VWM_ONPOLICY := --profile cpu --max-steps 2000 --precision $(VWM_PRECISION) --val-every 1000
   VPROBE_ARGS := --seeds 200000:200010 --max-steps 120 --batch 10
 else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
@@ -164,14 +173,16 @@ endif
 
 help:
 	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
-	@echo "make reproduce-pusht-vision   the same for image observations (visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher)"
+	@echo "make reproduce-pusht-vision   the same for image observations (fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
-	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) into artifacts/"
+	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) and their results into artifacts/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
+	@echo "make venv | lint | types | clean   the virtual environment alone; ruff; mypy; remove .venv, runs/ and results/"
+	@echo "options for every pipeline: SEEDS=START:STOP (test seeds), WORKERS=N (evaluation processes), RUN_DIR, RESULTS"
 
 venv: $(STAMP)
 
