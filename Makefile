@@ -262,15 +262,25 @@ $(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 # One eval per controller (NAME, results dir, prerequisites, gpc eval arguments), each skipped
 # once its summary is newer than the checkpoints it used; a stopped eval resumes its saved groups,
 # results of other checkpoints are replaced (--resume --overwrite).
+# eval_rule NAME,FOLDER,PREREQUISITES,ARGS,SEEDS: one controller's results. A folder holds one seed set: results for
+# other SEEDS would look up to date and be printed under the new seeds' title, so the folder is stamped with its seed
+# set (or, unstamped, read from the results it holds) and another one refused; order-only, so it never makes one stale.
 define eval_rule
-$(2)/$(1)/summary.json: $(3)
+$(2)/$(1)/summary.json: $(3) | $(2)/.seeds-$(subst :,-,$(5))
 	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1) --resume --overwrite
 endef
-$(eval $(call eval_rule,bc,$(RESULTS),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL)))
+.seeds-%:
+	@$(BIN)/python -c 'import json, pathlib, sys; folder, want = pathlib.Path(sys.argv[1]), sys.argv[2].replace("-", ":"); \
+	seeds = [json.loads(p.read_text()).get("run", {}).get("config", {}).get("seeds") for p in folder.glob("*/summary.json")]; \
+	held = {p.name[7:].replace("-", ":") for p in folder.glob(".seeds-*")} | {f"{min(s)}:{max(s) + 1}" for s in seeds if s}; \
+	held.discard(want); held and sys.exit(f"{folder} holds results for seeds {held.pop()}, not {want} (SEEDS): " \
+	"give another RESULTS, or remove that folder")' $(@D) $(patsubst .seeds-%,%,$(@F))
+	@mkdir -p $(@D) && touch $@
+$(eval $(call eval_rule,bc,$(RESULTS),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL))))
 # The ground-truth ceiling uses no learned world model, so only the policy makes it stale.
 uses_wm = $(if $(findstring gt-sim,$(1)),,$(2))
 $(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(call uses_wm,$(n),$(WM_RUN)-phase2.done),\
-  $(POLICY_CKPT) $(ARGS.$(n)) $(call uses_wm,$(n),--world-model $(WM_CKPT)) $(EVAL) --goal $(GOAL))))
+  $(POLICY_CKPT) $(ARGS.$(n)) $(call uses_wm,$(n),--world-model $(WM_CKPT)) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
 
 $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
 	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
@@ -367,11 +377,11 @@ $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
 	touch $@
 
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done
-$(eval $(call eval_rule,bc,$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL)))
+$(eval $(call eval_rule,bc,$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(VEVAL),$(word 2,$(VEVAL))))
 $(foreach n,$(VPLANNERS),$(eval $(call eval_rule,$(n),$(VRESULTS),$(VDONE),\
   $(VPOLICY_CKPT) $(ARGS.$(n)) --world-model $(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) \
-  --precision $(VPRECISION) $(VEVAL))))
-$(eval $(call eval_rule,$(VCEILING),$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL)))
+  --precision $(VPRECISION) $(VEVAL),$(word 2,$(VEVAL)))))
+$(eval $(call eval_rule,$(VCEILING),$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY_CKPT) $(ARGS.$(VCEILING)) $(VEVAL),$(word 2,$(VEVAL))))
 
 $(VTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json) $(VSHARED)/$(VCEILING)/summary.json
 	$(BIN)/gpc compare $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)) $(VSHARED)/$(VCEILING) --baseline $(VSHARED)/bc \

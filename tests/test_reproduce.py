@@ -121,8 +121,11 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert "gpc train" not in rest and "gpc collect" not in rest and "random goal" in rest  # the table's title
     bad = subprocess.run(args + ["GOAL=moving"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "GOAL=moving: use fixed or random" in bad.stderr
-    vision = args[:2] + ["reproduce-pusht-vision"] + args[3:]  # the image policy reads no goal: refused, not renamed
-    no_goal = subprocess.run(vision + ["GOAL=random", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    # the image policy reads no goal: GOAL=random is refused, not only renamed
+    no_goal = subprocess.run(vargs + ["GOAL=random", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert no_goal.returncode != 0 and "GOAL=random: the vision pipeline has fixed goals only" in no_goal.stderr
-    seeds = subprocess.run(vision + ["SEEDS=100005:100007", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert "--seeds 100005:100007" in seeds.stdout and "--seeds 100000:" not in seeds.stdout
+    other = subprocess.run(vargs + ["SEEDS=100005:100007"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert other.returncode != 0 and "holds results for seeds 100000:100002, not 100005:100007 (SEEDS)" in other.stderr
+    elsewhere = [a.replace(f"RESULTS={tmp_path / 'results'}", f"RESULTS={tmp_path / 'results-s'}") for a in vargs]
+    seeds = subprocess.run(elsewhere + ["SEEDS=100005:100007", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert "--seeds 100005:100007" in seeds.stdout and "--seeds 100000:" not in seeds.stdout  # its own folder: evaluated
