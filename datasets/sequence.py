@@ -110,6 +110,43 @@ def select(wanted: Sequence[Sequence[Any]], sources: Sequence[str], counts: Sequ
     return np.array(sorted(chosen), dtype=np.int64)
 
 
+
+@dataclass(frozen=True)
+class HeldOutOf:
+    """Another run's data record (what it trained on and held out) and the name errors give it."""
+
+    name: str
+    record: dict[str, Any]
+
+    @property
+    def label(self) -> str:
+        return f"held out by {self.name}"
+
+
+def held_out_by(other: dict[str, Any], own: dict[str, Any], sources: Sequence[str], counts: Sequence[int],
+                other_name: str = "the other run") -> np.ndarray:
+    """The episodes, among the given stores, that another run held out, refused where this run trained on one of
+    them: two models compared on exactly the episodes neither saw. A store this run's record lists is matched by its
+    path, or by its name where that path is not on this machine."""
+    if other.get("held_out") is None:
+        raise DataError(f"{other_name} does not list its held-out episodes by store (trained before gpc recorded them)")
+    chosen = select(other["held_out"], sources, counts, strict=False)
+    if len(chosen) == 0:
+        raise DataError(f"{other_name} held out no episode of the given stores; pass the stores it was trained on")
+    paths = [str(Path(s).resolve()) for s in sources]
+    trained = set()
+    for store in own.get("datasets", []):
+        mine = Path(store).resolve()
+        trained |= {i for i, p in enumerate(paths) if p == str(mine) or (not mine.exists() and Path(p).name == mine.name)}
+    own_held = set(select(own["held_out"], sources, counts, strict=False).tolist()) if own.get("held_out") else set()
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    for i in chosen.tolist():
+        s = int(np.searchsorted(starts, i, side="right") - 1)
+        if s in trained and i not in own_held:
+            raise DataError(f"{sources[s]} episode {i - starts[s]}: held out by {other_name} but in this model's "
+                            "training data; compare on stores it never saw or whose held-out episodes it shares")
+    return chosen
+
 def recorded_held_out(record: dict[str, Any], sources: Sequence[str], counts: Sequence[int], strict: bool = True) -> np.ndarray:
     """The episodes, among the given stores, that a run record held out from training: by their identity when the
     record lists them (``held_out``), else by its split seed and ratio over the stores in the order given.

@@ -67,6 +67,7 @@ def evaluate(
     noise: str = typer.Option("frozen", "--noise", help="Image models: frozen (deterministic) or sampled initial noise."),
     sampler_steps: int | None = typer.Option(None, "--sampler-steps", min=1, help="Image models: Euler steps per predicted frame (default: the checkpoint's, 3)."),
     pose_reader: Path | None = typer.Option(None, "--pose-reader", help="Image models: read the block pose with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour."),
+    held_out_of: Path | None = typer.Option(None, "--held-out-of", help="Use the episodes this other checkpoint held out (among --dataset) instead: two models on one unseen set; refused where this model trained on one of them."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for world_model_eval.json and .md (default: the run's eval/)."),
 ) -> None:
     """Open-loop rollout errors per horizon step on held-out windows, beside the nothing-moves baseline.
@@ -79,7 +80,7 @@ def evaluate(
 
     written = evaluate_world_model(checkpoint, dataset, out, split=split, episodes=episodes, horizon=horizon,
                                    stride=stride, max_windows=max_windows, noise=noise, sampler_steps=sampler_steps,
-                                   pose_reader=pose_reader)
+                                   pose_reader=pose_reader, held_out_of=held_out_of)
     typer.echo(written.markdown + f"\nwrote {', '.join(map(str, written.files))}")
 
 

@@ -18,6 +18,7 @@ from gpc.cli.main import app
 from gpc.cli.world_model import world_model_app
 from gpc.datasets.datamodule import EpisodeDataModule
 from gpc.datasets.errors import DataError
+from gpc.datasets.sequence import HeldOutOf
 from gpc.datasets.store import EpisodeStore
 from gpc.models.planning.protocols import WorldModel
 from gpc.models.rewards.registration import RegistrationReward
@@ -343,3 +344,32 @@ def test_object_frame_sees_a_moved_and_turned_scene_the_same():
     step2 = model.step(h2, a2) - h2[:, -1]
     assert torch.allclose(step2[:, 2:4], rotate(step[:, 2:4], torch.tensor(0.7)), atol=1e-3)
     assert torch.allclose(step2[:, 4], step[:, 4], atol=1e-4)
+
+
+def test_two_models_meet_on_the_episodes_one_of_them_held_out(phase1, store, tmp_path):
+    other = make_store(tmp_path / "other.zarr", episodes=4, seed=1)
+    both = train(WorldModelModule, tiny(1), [store, other], run(tmp_path, "both", max_steps=2))
+    held = [e for s, e in both.module.data_record["held_out"] if s == str(other.resolve())]
+    assert held, "the split over 12 episodes holds out some of other.zarr's"
+    named = HeldOutOf(str(both.last), both.module.data_record)
+    # phase1 never saw other.zarr: it is scored on exactly the episodes `both` held out of it.
+    report = evaluate_rollouts(phase1.module, [other], layout=LAYOUT, held_out_of=named)
+    assert report["episodes"] == len(held) and report["split"] == f"held out by {both.last}"
+    assert report["windows"] == evaluate_rollouts(both.module, [other], layout=LAYOUT, split="all",
+                                                   episodes=4)["windows"] * len(held) // 4
+    # phase1 trained on synth.zarr except its own held-out episodes: `both`'s differ, so some it trained on.
+    with pytest.raises(DataError, match=r"synth.zarr episode \d+: held out by .* but in this model's training data") as err:
+        evaluate_rollouts(phase1.module, [store, other], layout=LAYOUT, held_out_of=named)
+    assert "\n" not in str(err.value)
+    cli = CliRunner()
+    out = tmp_path / "eval"
+    ok = cli.invoke(app, ["eval", "world-model", str(phase1.last), "--dataset", str(other), "--held-out-of", str(both.last),
+                          "--out", str(out)])
+    assert ok.exit_code == 0, ok.output
+    assert f"from {len(held)} episodes held out by {both.last}" in (out / "world_model_eval.md").read_text()
+    clash = cli.invoke(app, ["eval", "world-model", str(phase1.last), "--dataset", str(other), "--held-out-of",
+                             str(both.last), "--split", "all", "--out", str(tmp_path / "clash")])
+    assert clash.exit_code != 0 and "--split all and --held-out-of exclude each other" in clash.output
+    unknown = cli.invoke(app, ["eval", "world-model", str(phase1.last), "--dataset", str(other), "--held-out-of",
+                               str(phase1.last), "--out", str(tmp_path / "none")])
+    assert unknown.exit_code != 0 and "held out no episode of the given stores" in unknown.output

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
+from gpc.datasets.sequence import HeldOutOf
 from gpc.harness import interrupts
 from gpc.harness.files import check_out, write_atomic, write_bytes_atomic
 from gpc.tasks import get_task
@@ -40,21 +41,34 @@ def default_out(checkpoint: Path) -> Path:
 def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path | None = None, split: str = "val",
                          episodes: int | None = None, horizon: int | None = None, stride: int | None = None,
                          max_windows: int = 512, noise: str = "frozen", sampler_steps: int | None = None,
-                         pose_reader: Path | None = None) -> Written:
+                         pose_reader: Path | None = None, held_out_of: Path | None = None) -> Written:
     """Rollout errors per horizon step beside the nothing-moves baseline; ``out``: default ``default_out``.
 
-    ``max_windows``, ``noise``, ``sampler_steps`` and ``pose_reader`` apply to visual models only.
+    ``max_windows``, ``noise``, ``sampler_steps`` and ``pose_reader`` apply to visual models only;
+    ``held_out_of``: a checkpoint whose held-out episodes to use instead of this one's (two models, one test set).
     """
     out = out or default_out(checkpoint)
     check_out(out)
+    other = _held_out_of(held_out_of)
     with exclusive(out, "evaluation folder"):
         return _world_model(checkpoint, datasets, out, split, episodes, horizon, stride, max_windows, noise,
-                            sampler_steps, pose_reader)
+                            sampler_steps, pose_reader, other)
+
+
+def _held_out_of(path: Path | None) -> HeldOutOf | None:
+    if path is None:
+        return None
+    from gpc.models.training.checkpoint import read_checkpoint
+
+    record = read_checkpoint(path, None).get("hyper_parameters", {}).get("data")
+    if not record:
+        raise DataError(f"{path}: records no training data to take held-out episodes from")
+    return HeldOutOf(str(path), dict(record))
 
 
 def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: str, episodes: int | None,
                  horizon: int | None, stride: int | None, max_windows: int, noise: str, sampler_steps: int | None,
-                 pose_reader: Path | None) -> Written:
+                 pose_reader: Path | None, held_out_of: HeldOutOf | None) -> Written:
     from gpc.models.world_models.config import VisualWorldModelConfig
     from gpc.models.world_models.module import WorldModelModule
 
@@ -85,7 +99,7 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
             readout = LearnedPoseReadout(colour, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon,
                                                 readout=readout, stride=stride or IMAGE_STRIDE,
-                                                max_windows=max_windows, noise=noise)
+                                                max_windows=max_windows, noise=noise, held_out_of=held_out_of)
         table = visual_markdown_table(report, f"Visual world model rollouts: {checkpoint}")
         interrupts.check()
         out.mkdir(parents=True, exist_ok=True)
@@ -101,7 +115,7 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
             if value is not None:
                 raise ValueError(f"{option} applies to image world models only")
         report = evaluate_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon, layout=layout,
-                                   stride=stride or STATE_STRIDE)
+                                   stride=stride or STATE_STRIDE, held_out_of=held_out_of)
         table = markdown_table(report, f"World model rollouts: {checkpoint}")
     report["checkpoint"] = str(checkpoint)
     interrupts.check()

@@ -20,7 +20,7 @@ import torch
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.layout import StateLayout, TaskLayout
-from gpc.datasets.sequence import WindowSpec, recorded_held_out, window_indices, window_starts
+from gpc.datasets.sequence import HeldOutOf, WindowSpec, held_out_by, recorded_held_out, window_indices, window_starts
 from gpc.datasets.windows import load_stores
 from gpc.models.rewards.registration import registration_distance
 from gpc.models.world_models.module import WorldModelModule
@@ -46,12 +46,13 @@ def _errors(pred: torch.Tensor, true: torch.Tensor, layout: StateLayout, vertice
 
 def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
                      episodes: int | None = None, horizon: int | None = None, stride: int = 1,
-                     max_windows: int | None = None) -> tuple[Any, np.ndarray, np.ndarray, int]:
+                     max_windows: int | None = None, held_out_of: HeldOutOf | None = None) -> tuple[Any, np.ndarray, np.ndarray, int]:
     """The evaluation windows: (arrays, chosen episodes, ``(N, n_obs + T)`` step indices, T).
 
     ``split="val"``: the validation episodes of the split the model was trained with (its
     recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
-    store the model never saw). ``episodes``: only the first N of them. Windows start every
+    store the model never saw). ``held_out_of``: instead, the episodes another run held out, so two
+    models meet on the same unseen episodes (``held_out_by``). ``episodes``: only the first N of them. Windows start every
     ``stride`` steps (histories padded at episode starts, futures never); ``max_windows``:
     only that many, evenly spread.
     """
@@ -61,7 +62,11 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
         raise ValueError(f"stride {stride}: must be at least 1")
     h, t = module.n_obs_steps, horizon or module.config.horizon
     arrays = load_stores([str(p) for p in datasets], tuple(keys))
-    if split == "val":
+    if held_out_of is not None:
+        if split != "val":
+            raise ValueError("--split all and --held-out-of exclude each other")
+        chosen = held_out_by(held_out_of.record, module.data_record, arrays.sources, arrays.counts, held_out_of.name)
+    elif split == "val":
         chosen = recorded_held_out(module.data_record, arrays.sources, arrays.counts)
         if len(chosen) == 0:
             raise DataError("the model was trained without held-out episodes; pass --split all with a separate store")
@@ -80,13 +85,15 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
 def evaluate_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
     horizon: int | None = None, layout: TaskLayout | None = None, batch_size: int = 4096, stride: int = 1,
+    held_out_of: HeldOutOf | None = None,
 ) -> dict[str, Any]:
     """Per-step mean errors of the state model and of the "nothing moves" baseline on held-out
-    windows (see ``held_out_windows`` for ``split``, ``episodes``, ``stride``); ``layout``: the
+    windows (see ``held_out_windows`` for ``split``, ``episodes``, ``stride``, ``held_out_of``); ``layout``: the
     task's, for where the object and the agent sit and the object's outline."""
     if layout is None:
         raise ValueError("evaluate_rollouts needs the task's layout (gpc.tasks.get_task(name).layout)")
-    arrays, chosen, idx, t = held_out_windows(module, datasets, (STATE_KEY, ACTION_KEY), split, episodes, horizon, stride)
+    arrays, chosen, idx, t = held_out_windows(module, datasets, (STATE_KEY, ACTION_KEY), split, episodes, horizon, stride,
+                                              held_out_of=held_out_of)
     h = module.n_obs_steps
     states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
     actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
@@ -103,10 +110,17 @@ def evaluate_rollouts(
     means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}
     steps = [{"step": i + 1, **{name: {m: means[name][m][i] for m in means[name]} for name in means}} for i in range(t)]
     return {
-        "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(n),
+        "split": held_out_of.label if held_out_of else split, "datasets": [str(p) for p in datasets],
+        "episodes": int(len(chosen)), "windows": int(n),
         "history": h, "horizon": t, "config": module.config.to_dict(), "steps": steps,
         "mean_over_steps": {name: {m: float(np.mean(v)) for m, v in means[name].items()} for name in means},
     }
+
+
+def episodes_phrase(report: dict[str, Any]) -> str:
+    """"12 val episodes", or "12 episodes held out by B.ckpt"."""
+    split = report["split"]
+    return f"{report['episodes']} {split} episodes" if split in SPLITS else f"{report['episodes']} episodes {split}"
 
 
 def markdown_table(report: dict[str, Any], title: str = "World model rollouts") -> str:
@@ -114,7 +128,7 @@ def markdown_table(report: dict[str, Any], title: str = "World model rollouts") 
     metrics = [m for m in METRICS if m in report["steps"][0]["model"]]
     lines = [
         f"## {title}", "",
-        f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; history {report['history']}, "
+        f"{report['windows']} windows from {episodes_phrase(report)}; history {report['history']}, "
         f"horizon {report['horizon']}. Each cell: model / nothing-moves baseline (mean error).", "",
         "| step | " + " | ".join(METRICS[m] for m in metrics) + " |",
         "|---|" + "---|" * len(metrics),

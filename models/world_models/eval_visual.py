@@ -26,9 +26,10 @@ import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
 from gpc.datasets.layout import TaskLayout
+from gpc.datasets.sequence import HeldOutOf
 from gpc.models.rewards.registration import registration_distance
 from gpc.models.world_models.config import IMAGE_KEY, VisualWorldModelConfig
-from gpc.models.world_models.eval_state import held_out_windows
+from gpc.models.world_models.eval_state import episodes_phrase, held_out_windows
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.visual import ACTION_KEY, VisualDynamics
 
@@ -162,18 +163,18 @@ def _pose_errors(pred: np.ndarray, true: np.ndarray, vertices: np.ndarray | None
 def evaluate_visual_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
     horizon: int | None = None, readout: ColourReadout | LearnedPoseReadout | None = None, stride: int = 8, max_windows: int | None = 512,
-    batch_size: int = 32, noise: str = "frozen", grid_windows: int = 6, seed: int = 0,
+    batch_size: int = 32, noise: str = "frozen", grid_windows: int = 6, seed: int = 0, held_out_of: HeldOutOf | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """Per-step SSIM / PSNR (and, with ``readout``, object pose errors and agent visibility) of the
     model and of the nothing-moves baseline; returns (report, PNG grid as ``(H, W, 3)`` uint8 RGB).
 
-    Windows as ``held_out_windows`` picks them (every ``stride`` steps, at most ``max_windows``).
+    Windows as ``held_out_windows`` picks them (every ``stride`` steps, at most ``max_windows``; ``held_out_of``).
     """
     dyn, config = module.dynamics, module.config
     assert isinstance(dyn, VisualDynamics) and isinstance(config, VisualWorldModelConfig)  # a visual world model
     c = config.dynamics
     arrays, chosen, idx, t = held_out_windows(module, datasets, (IMAGE_KEY, ACTION_KEY), split, episodes, horizon,
-                                              stride, max_windows)
+                                              stride, max_windows, held_out_of)
     n0, f = module.n_obs_steps, c.frameskip
     steps = t // f
     future = n0 - 1 + f * np.arange(1, steps + 1)  # window positions of the predicted frames
@@ -197,7 +198,8 @@ def evaluate_visual_rollouts(
     merged = {name: {m: torch.cat(v).mean(dim=0).tolist() for m, v in d.items()} for name, d in scores.items()}
     model, true, last = (np.concatenate(frames_u8[k]) for k in ("model", "true", "last"))
     report: dict[str, Any] = {
-        "split": split, "datasets": [str(p) for p in datasets], "episodes": int(len(chosen)), "windows": int(len(idx)),
+        "split": held_out_of.label if held_out_of else split, "datasets": [str(p) for p in datasets],
+        "episodes": int(len(chosen)), "windows": int(len(idx)),
         "history": n0, "horizon": t, "frameskip": f, "resolution": c.resolution, "noise": noise,
         "sampler": asdict(dyn.config.sampler),
         "config": replace(config, dynamics=dyn.config).to_dict(),  # the chain actually sampled (--sampler-steps)
@@ -270,7 +272,7 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
                                                     + ["agent visible"] if ro else [])
     lines = [
         f"## {title}", "",
-        f"{report['windows']} windows from {report['episodes']} {report['split']} episodes; {report['resolution']} px, "
+        f"{report['windows']} windows from {episodes_phrase(report)}; {report['resolution']} px, "
         f"frameskip {report['frameskip']}, {report['noise']} noise, {report['sampler']['steps']} Euler steps. "
         "Each cell: model / nothing-moves baseline "
         "(SSIM, PSNR: higher is better; pose errors: lower)."
