@@ -110,7 +110,6 @@ def select(wanted: Sequence[Sequence[Any]], sources: Sequence[str], counts: Sequ
     return np.array(sorted(chosen), dtype=np.int64)
 
 
-
 @dataclass(frozen=True)
 class HeldOutOf:
     """Another run's data record (what it trained on and held out) and the name errors give it."""
@@ -146,6 +145,7 @@ def held_out_by(other: dict[str, Any], own: dict[str, Any], sources: Sequence[st
             raise DataError(f"{sources[s]} episode {i - starts[s]}: held out by {other_name} but in this model's "
                             "training data; compare on stores it never saw or whose held-out episodes it shares")
     return chosen
+
 
 def recorded_held_out(record: dict[str, Any], sources: Sequence[str], counts: Sequence[int], strict: bool = True) -> np.ndarray:
     """The episodes, among the given stores, that a run record held out from training: by their identity when the
