@@ -60,11 +60,11 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
         raise ValueError(f"split {split!r}: use one of {', '.join(SPLITS)}")
     if stride < 1:
         raise ValueError(f"stride {stride}: must be at least 1")
+    if held_out_of is not None and split != "val":
+        raise ValueError("--split all and --held-out-of exclude each other")
     h, t = module.n_obs_steps, horizon or module.config.horizon
     arrays = load_stores([str(p) for p in datasets], tuple(keys))
     if held_out_of is not None:
-        if split != "val":
-            raise ValueError("--split all and --held-out-of exclude each other")
         chosen = held_out_by(held_out_of.record, module.data_record, arrays.sources, arrays.counts, held_out_of.name)
     elif split == "val":
         chosen = recorded_held_out(module.data_record, arrays.sources, arrays.counts)
