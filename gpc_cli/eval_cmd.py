@@ -166,7 +166,7 @@ def eval_ascent(
     from gpc.harness.opt_probe import markdown, probe, summarize
 
     assert planning is not None  # with_planning_options passes them
-    check_file_out(out, ".md")
+    check_file_out(out, ".md", beside=(".json",))
     recipe = recipe_from_options(checkpoint, planner, planning, goal)
     if recipe.planner is None or not recipe.planner.uses_gradients:
         raise typer.BadParameter(f"{planner} takes no gradient steps; probe opt, rank-opt or grad", param_hint="--planner")
@@ -193,13 +193,14 @@ def compare(
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
     from gpc.datasets.locks import exclusive
     from gpc.harness import interrupts
-    from gpc.harness.comparison import check_compare_out, compare_runs, plot_comparison, write_comparison
+    from gpc.harness.comparison import adopt_older, check_compare_out, compare_runs, plot_comparison, write_comparison
 
     check_compare_out(out)
     table = compare_runs(baseline, runs, ceiling)
     interrupts.check()
     with exclusive(out, "comparison"):
         check_compare_out(out)
+        adopt_older(out)
         md = write_comparison(table, out, title, paper)
         plot = plot_comparison(table, out.with_suffix(".png"))
     typer.echo(md)

@@ -150,14 +150,19 @@ def export(
 
     from gpc.datasets.errors import DataError
     from gpc.harness.files import check_file_out, write_bytes_atomic
+    from gpc.harness.ownership import adopt
     from gpc.models.training.checkpoint import for_planning, read_checkpoint
 
-    check_file_out(out, ".ckpt")
+    def older_export(file: Path) -> bool:  # a gpc checkpoint written before gpc kept its ownership record
+        return bool(read_checkpoint(file, None))
+
+    check_file_out(out, ".ckpt", proof=older_export)  # --overwrite replaces only a file gpc wrote
     if out.exists() and out.resolve() == path.resolve():
         raise DataError(f"{out}: is the checkpoint being exported; --out names a new file")
     if out.exists() and not overwrite:
         raise DataError(f"{out}: already exists; choose another --out or pass --overwrite")
     ckpt = read_checkpoint(path, None)
+    adopt([out], older_export)
     buffer = io.BytesIO()
     torch.save(for_planning(ckpt), buffer)
     out.parent.mkdir(parents=True, exist_ok=True)

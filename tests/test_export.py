@@ -67,11 +67,19 @@ def test_exported_world_model_keeps_every_weight(ckpts, tmp_path):
 def test_export_refuses_to_replace_what_it_was_not_asked_to(ckpts, tmp_path):
     out = tmp_path / "kept.ckpt"
     out.write_bytes(b"the user's file")
-    r = gpc("export", ckpts["policy"], "--out", out)
-    assert r.exit_code == 2 and "already exists" in r.output and "Traceback" not in r.output
-    assert out.read_bytes() == b"the user's file"
-    assert gpc("export", ckpts["policy"], "--out", out, "--overwrite").exit_code == 0
-    assert PolicyModule.load_from_checkpoint(out) is not None
+    for flags in ((), ("--overwrite",)):  # a file gpc did not write is never replaced, --overwrite included
+        r = gpc("export", ckpts["policy"], "--out", out, *flags)
+        assert r.exit_code == 2 and f"{out}: exists and was not written by gpc" in r.output and "Traceback" not in r.output
+        assert out.read_bytes() == b"the user's file"
+    mine = tmp_path / "mine.ckpt"
+    assert gpc("export", ckpts["policy"], "--out", mine).exit_code == 0
+    r = gpc("export", ckpts["policy"], "--out", mine)
+    assert r.exit_code == 2 and "already exists; choose another --out or pass --overwrite" in r.output
+    assert gpc("export", ckpts["policy"], "--out", mine, "--overwrite").exit_code == 0  # gpc's own export: replaced
+    assert PolicyModule.load_from_checkpoint(mine) is not None
+    older = tmp_path / "older.ckpt"  # an export of a gpc that kept no record: its gpc record proves it
+    shutil.copy(mine, older)
+    assert gpc("export", ckpts["policy"], "--out", older, "--overwrite").exit_code == 0
     copy = tmp_path / "copy.ckpt"
     shutil.copy(ckpts["policy"], copy)
     r = gpc("export", copy, "--out", copy, "--overwrite")
@@ -157,7 +165,7 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
     assert (runs / "vpolicy" / "checkpoints" / "trained.ckpt").read_bytes() == Path(ckpts["policy"]).read_bytes()
     assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
     assert (art / "wm-visual-phase1.resume.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
-    kept_results = sorted(str(p.relative_to(art)) for p in art.rglob("*.json"))
+    kept_results = sorted(str(p.relative_to(art)) for p in art.rglob("*.json") if p.name != ".gpc-files.json")
     assert kept_results == ["results/results-vision/bc/.groups/0.json", "results/results-vision/bc/summary.json",
                             "results/results-vision/vrank-K3/.groups/0.json"]  # the videos stay behind
     stamp = (art / "vpolicy.ckpt").stat().st_mtime_ns

@@ -59,7 +59,7 @@ def test_damaged_results_and_bad_values_are_one_line(tiny_pusht, tmp_path, case)
         if case == "summary list":
             (res / "summary.json").write_text("[]")
             one_line(inline("eval", policy, "--seeds", "100000:100002", "--out", str(res)), 2, str(res / "summary.json"),
-                     "not a gpc results record")
+                     "was not written by gpc")
             return
         if case == "no ceiling seed":
             top = tmp_path / "top"

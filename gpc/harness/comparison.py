@@ -18,9 +18,11 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.harness.files import check_file_out, read_json, write_atomic, write_bytes_atomic
+from gpc.harness.ownership import adopt
 from gpc.tasks import DEFAULT_TASK, get_task
 
 COMPARISON = "gpc compare"  # the kind its JSON records: what --out may replace
+COMPARISON_SUFFIXES = (".md", ".json", ".png")  # the files --out names
 
 # What makes two runs comparable seed by seed: (summary field, how the message names it).
 SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-steps"), ("sampling_seed", "--sampling-seeds"),
@@ -204,21 +206,30 @@ def _pct(x: float) -> str:
 
 
 def check_compare_out(out: Path) -> None:
-    """``--out`` names a .md file whose .md, .json and .png are new or an earlier comparison's (nothing else is replaced)."""
-    check_file_out(out, ".md")
-    written = [out, out.with_suffix(".json"), out.with_suffix(".png")]
-    for path in written[1:]:
-        if path.is_dir():
-            raise DataError(f"{path}: is a folder; gpc compare --out {out} writes a file there")
-    if any(p.exists() for p in written):
-        record = out.with_suffix(".json")
-        try:
-            held = json.loads(record.read_text()) if record.is_file() else None
-            ours = isinstance(held, dict) and (held.get("kind") == COMPARISON or {"baseline", "rows"} <= set(held))  # (or older)
-        except (OSError, ValueError):
-            ours = False
-        if not ours:
-            raise DataError(f"{out}: it or its .json or .png exists and is not a comparison gpc wrote; choose another --out")
+    """``--out`` names a .md file whose .md, .json and .png are new or gpc's (an earlier comparison's: never an
+    evaluation's ``summary.md`` or a file of the user's; ``gpc.harness.ownership``)."""
+    check_file_out(out, ".md", beside=COMPARISON_SUFFIXES[1:], proof=_older_comparison)
+    for path in (out.with_suffix(s) for s in COMPARISON_SUFFIXES):  # gpc's, and a comparison (not a summary.md)
+        if path.is_file() and not _comparison(path):
+            raise DataError(f"{path}: exists and is not a comparison gpc wrote; choose another --out")
+
+
+def adopt_older(out: Path) -> None:
+    """Record an older gpc's comparison at ``out`` as gpc's (it kept no ownership record), before it is replaced."""
+    adopt([out.with_suffix(s) for s in COMPARISON_SUFFIXES], _older_comparison)
+
+
+def _older_comparison(path: Path) -> bool:
+    """A comparison an older gpc wrote: its ``.json`` says so (``kind``, or the rows and baseline of older ones)."""
+    held = json.loads(path.with_suffix(".json").read_text())
+    return isinstance(held, dict) and (held.get("kind") == COMPARISON or {"baseline", "rows"} <= set(held))
+
+
+def _comparison(path: Path) -> bool:
+    try:
+        return _older_comparison(path)
+    except (OSError, ValueError):
+        return False
 
 
 def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | None = None) -> str:

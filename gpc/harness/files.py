@@ -3,53 +3,37 @@
 from __future__ import annotations
 
 import os
-import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.jsonfile import read_json
+from gpc.harness.ownership import Proof, claim, write_bytes
 
 __all__ = ["check_file_out", "check_out", "read_json", "write_atomic", "write_bytes_atomic"]
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write beside ``path``, then rename over it; a failure names ``path``, not the temporary file."""
-    write_bytes_atomic(path, text.encode())
+    """Write beside ``path``, then rename over it, recorded as gpc's (``gpc.harness.ownership``: a file there
+    that gpc did not write is refused, never replaced); a failure names ``path``, not the temporary file."""
+    write_bytes(path, text.encode())
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """``write_atomic`` for bytes (an image)."""
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp's 0600 would hide the file from the user's group
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``write_atomic`` for bytes (an image, a checkpoint)."""
+    write_bytes(path, data)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def check_file_out(path: Path, suffix: str, option: str = "--out") -> None:
-    """``path`` can become a ``suffix`` file (a video, a report) in a folder this process may write, before any work."""
+def check_file_out(path: Path, suffix: str, option: str = "--out", beside: Sequence[str] = (), proof: Proof | None = None) -> None:
+    """``path`` can become a ``suffix`` file (a video, a report) in a folder this process may write, before any work;
+    it and the files written ``beside`` it (their suffixes) are new or gpc's own (``ownership.claim``)."""
     path = Path(path)
     if path.is_dir():
         raise DataError(f"{path}: is a folder; {option} names the {suffix} file to write")
     if path.suffix.lower() != suffix:
         raise DataError(f"{path}: {option} names a {suffix} file (gpc does not write {suffix} content under another name)")
     check_out(path.parent)
+    claim([path, *(path.with_suffix(s) for s in beside)], option, proof)
 
 
 def check_out(out: Path) -> None:

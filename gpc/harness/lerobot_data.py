@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -36,20 +39,27 @@ def _lerobot_task(task: Task) -> Task:
     return task
 
 
-def _check_new(out: Path) -> Path:
-    if out.exists():
+def _check_new(out: Path) -> None:
+    if out.exists() or out.is_symlink():
         raise DataError(f"{out}: already exists; gpc converts only into a new path (remove it or choose another)")
     if not out.parent.exists():
         raise DataError(f"{out.parent}: no such directory")
-    staging = out.with_name(f".{out.name}.partial")
-    if staging.exists():  # a conversion that was stopped: ours to remove
-        shutil.rmtree(staging)
-    return staging
 
 
-def _finish(staging: Path, out: Path) -> None:
-    interrupts.check()
-    os.replace(staging, out)
+@contextmanager
+def _staged(out: Path) -> Iterator[Path]:
+    """Where the conversion is written (a new folder of a name nobody else uses, beside ``out``), renamed to
+    ``out`` when the block ends; a failure or a stop removes it, and only it."""
+    try:
+        place = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    except OSError as exc:
+        raise DataError(f"{out}: cannot be written ({exc.strerror or exc})") from None
+    try:
+        yield place / out.name
+        interrupts.check()
+        os.rename(place / out.name, out)
+    finally:
+        shutil.rmtree(place, ignore_errors=True)
 
 
 def export_store(store_path: Path, out: Path, video: str = "lossless", task: str | None = None,
@@ -60,7 +70,7 @@ def export_store(store_path: Path, out: Path, video: str = "lossless", task: str
     chosen = _lerobot_task(get_task(task or task_of(store) or DEFAULT_TASK))
     if store.n_episodes == 0:
         raise DataError(f"{store_path}: holds no episodes")
-    staging = _check_new(out)
+    _check_new(out)
     assert chosen.to_lerobot is not None
     episodes, keys = [], {}
     for i in range(store.n_episodes):
@@ -80,13 +90,9 @@ def export_store(store_path: Path, out: Path, video: str = "lossless", task: str
               "episode_seeds": None if seeds is None else [int(s) for s in seeds],
               "episode_scores": None if scores is None else [float(s) for s in scores],
               "task": chosen.name, "video": video}
-    try:
+    with _staged(out) as staging:
         staging.mkdir()
         write_lerobot(staging, episodes, chosen.fps, chosen.description, video, {"gpc": record})
-        _finish(staging, out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     return {"episodes": len(episodes), "frames": int(store.n_steps), "out": str(out), "video": video if images else "no"}
 
 
@@ -111,13 +117,13 @@ def import_dataset(src: Path, out: Path, task: str | None = None) -> dict[str, A
 
         record = read_json(src / "meta" / META).get("gpc")
     chosen = _lerobot_task(get_task(task or (record or {}).get("task") or DEFAULT_TASK))
-    staging = _check_new(out)
+    _check_new(out)
     attrs = dict(record["attrs"]) if record else {"task": chosen.name}
     attrs["imported_from"] = {"path": str(src), "codebase_version": reader.info.get("codebase_version"), "fps": reader.fps}
     seeds = (record or {}).get("episode_seeds") or [-1] * reader.n_episodes
     scores = (record or {}).get("episode_scores") or [float("nan")] * reader.n_episodes
     assert chosen.from_lerobot is not None
-    try:
+    with _staged(out) as staging:
         store = EpisodeStore.create(staging, attrs)
         for i, features in enumerate(reader.episodes()):
             try:
@@ -126,9 +132,5 @@ def import_dataset(src: Path, out: Path, task: str | None = None) -> dict[str, A
                 raise DataError(f"{src}: episode {i}: {exc}") from None
             store.append_episode(episode, seed=int(seeds[i]), score=float(scores[i]))
             interrupts.check()
-        _finish(staging, out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     return {"episodes": reader.n_episodes, "frames": int(sum(reader.lengths())), "out": str(out),
             "exact": record is not None, "task": chosen.name}

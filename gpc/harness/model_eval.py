@@ -20,9 +20,12 @@ from gpc.datasets.locks import exclusive
 from gpc.datasets.sequence import HeldOutOf
 from gpc.harness import interrupts
 from gpc.harness.files import check_out, write_atomic, write_bytes_atomic
+from gpc.harness.ownership import claim
 from gpc.tasks import get_task
 
 STATE_STRIDE, IMAGE_STRIDE = 1, 8  # default steps between window starts
+WORLD_MODEL_FILES = ("world_model_eval.json", "world_model_eval.md", "world_model_frames.png")
+REWARD_FILES = ("reward_eval.json", "reward_eval.md")
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,7 @@ def evaluate_world_model(checkpoint: Path, datasets: Sequence[Path], out: Path |
     """
     out = out or default_out(checkpoint)
     check_out(out)
+    claim([out / name for name in WORLD_MODEL_FILES])
     other = _held_out_of(held_out_of)
     with exclusive(out, "evaluation folder"):
         return _world_model(checkpoint, datasets, out, split, episodes, horizon, stride, max_windows, noise,
@@ -134,6 +138,7 @@ def evaluate_reward(checkpoint: Path, datasets: Sequence[Path], out: Path | None
 
     out = out or default_out(checkpoint)
     check_out(out)
+    claim([out / name for name in REWARD_FILES])
     with exclusive(out, "evaluation folder"):
         module = RewardPredictorModule.load_from_checkpoint(checkpoint)
         sets = [(list(datasets), split)] + [([p], "all") for p in ood]

@@ -28,6 +28,7 @@ from gpc.datasets.locks import exclusive
 from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
 from gpc.harness.files import check_out, read_json, write_atomic
+from gpc.harness.ownership import RECORD, adopt, claim, remove
 from gpc.harness.recipes import GT_SIM, PlannerRecipe
 
 GROUPS = ".groups"
@@ -82,12 +83,31 @@ def first_difference(held: Any, given: Any, path: str = "") -> str:
     return f"{path or 'run'}: {shown[0]} there, {shown[1]} here"
 
 
+def _results_record(path: Path) -> bool:
+    """An older gpc's results file (it kept no ownership record): its folder's ``summary.json`` (or the
+    stopped run's ``.groups/run.json``) is a gpc results record."""
+    folder = path.parent.parent if path.parent.name == GROUPS else path.parent
+    for record in (folder / "summary.json", folder / GROUPS / "run.json"):
+        held = read_json(record) if record.is_file() else None
+        if isinstance(held, dict) and ("run" in held or {"config", "mean_score"} <= set(held)):
+            return True
+    return False
+
+
+def _ours(out: Path) -> list[Path]:
+    """The files a run writes in ``out`` (and removes when it replaces another run's)."""
+    groups = out / GROUPS
+    return [out / name for name in RESULT_FILES] + ([groups / "run.json", *groups.glob("group-*.json")] if groups.is_dir() else [])
+
+
 def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> None:
     """Refuse, reading only, results ``out`` holds that this run may not touch.
 
     ``resume``: go on with the same run (refused for another); ``overwrite``: replace another run's
-    results; both: go on if it is the same run, else replace.
+    results; both: go on if it is the same run, else replace. A file there that gpc did not write
+    is refused whatever the flags (``gpc.harness.ownership``).
     """
+    claim(_ours(out), proof=_results_record)
     held = _held(out)
     same = held == identity
     if held is not None and not (resume and same) and not overwrite:
@@ -101,6 +121,7 @@ def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: 
 def prepare(out: Path, identity: dict[str, Any], resume: bool, overwrite: bool) -> list[dict[str, Any]]:
     """Make ``out`` ready for this run (see ``check_results``); returns the groups an earlier, stopped run of it finished."""
     check_results(out, identity, resume, overwrite)
+    adopt(_ours(out), _results_record)
     _clear_other(out, identity, resume)
     groups = out / GROUPS
     groups.mkdir(parents=True, exist_ok=True)
@@ -112,9 +133,21 @@ def _clear_other(out: Path, identity: dict[str, Any], resume: bool) -> None:
     """Remove the results of another run (``check_results`` allowed it: --overwrite)."""
     held = _held(out)
     if held is not None and not (resume and held == identity):
-        for name in RESULT_FILES:
-            (out / name).unlink(missing_ok=True)
-        shutil.rmtree(out / GROUPS, ignore_errors=True)
+        for path in _ours(out):
+            remove(path)
+        _drop_groups(out)
+
+
+def _drop_groups(out: Path) -> None:
+    """Remove the finished (or replaced) run's ``.groups`` folder: gpc's files in it, then the folder once
+    nothing but gpc's record is left (a file someone put there keeps it)."""
+    groups = out / GROUPS
+    if not groups.is_dir():
+        return
+    for path in _ours(out)[len(RESULT_FILES):]:
+        remove(path)
+    if not any(p.name != RECORD for p in groups.iterdir()):
+        shutil.rmtree(groups)
 
 
 def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool = False, overwrite: bool = False,
@@ -144,7 +177,7 @@ def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool 
         result["controller"] = recipe.summary()
         result["run"] = identity
         write_results(result, out, f"{recipe.label}: {recipe.policy}")
-        shutil.rmtree(out / GROUPS)
+        _drop_groups(out)
     return result
 
 
@@ -177,6 +210,9 @@ def check_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_se
     for folder, _, identity in runs:
         check_out(folder)
         check_results(folder, identity, resume, overwrite)
+    if config.videos and config.video_dir:
+        check_out(Path(config.video_dir))
+        claim([Path(config.video_dir) / f"seed{s}.mp4" for s in config.seeds[: config.videos]])
 
 
 def run_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_seeds: Sequence[int] = (0,),

@@ -10,6 +10,7 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.harness import interrupts
+from gpc.harness.ownership import install, temporary_beside
 
 
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, scale: int = 1) -> int:
@@ -22,8 +23,8 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
-    tmp = path.with_name(f".{path.stem}.partial.mp4")
-    writer, n, done = None, 0, False
+    tmp = temporary_beside(path, ".partial.mp4")  # a new name: a file of the user's is never written over
+    writer, n = None, 0
     try:
         for frame in frames:
             frame = np.asarray(frame, dtype=np.uint8)
@@ -42,14 +43,9 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
         writer.release()
         if not tmp.is_file() or tmp.stat().st_size == 0:
             raise DataError(f"{path}: cannot be written (the disk may be full)")
-        try:
-            tmp.replace(path)
-        except OSError as exc:
-            raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
-        done = True
+        install(tmp, path)  # recorded as gpc's; a file there that gpc did not write is refused, not replaced
     finally:
         if writer is not None:
             writer.release()
-        if not done:
-            tmp.unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
     return n
