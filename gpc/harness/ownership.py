@@ -56,11 +56,9 @@ def is_ours(path: Path, proof: Proof | None = None) -> bool:
     if not path.is_file():
         return False
     entry = _entries(path.parent).get(path.name)
-    if isinstance(entry, dict):
-        wanted = {entry.get("sha256"), entry.get("pending")} - {None}
+    if isinstance(entry, dict):  # gpc wrote a file of this name: it is gpc's only as gpc wrote it (not as edited since)
         try:
-            if wanted and digest_file(path) in wanted:
-                return True
+            return digest_file(path) in {entry.get("sha256"), entry.get("pending")} - {None}
         except OSError:
             return False
     return proof is not None and _proven(proof, path)
