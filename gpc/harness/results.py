@@ -146,8 +146,13 @@ def _drop_groups(out: Path) -> None:
         return
     for path in _ours(out)[len(RESULT_FILES):]:
         remove(path)
-    if not any(p.name != RECORD for p in groups.iterdir()):
+    if all(p.name == RECORD or _temporary(p) for p in groups.iterdir()):
         shutil.rmtree(groups)
+
+
+def _temporary(path: Path) -> bool:
+    """A file gpc's writes leave only when killed mid-write (``ownership.temporary_beside``)."""
+    return path.name.startswith(".") and path.name.endswith(".tmp")
 
 
 def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool = False, overwrite: bool = False,
