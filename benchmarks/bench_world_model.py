@@ -48,7 +48,7 @@ def _reward(obs: str, checkpoint: str | None, profile: str) -> PoseReward:
     if obs == "state":
         return RegistrationReward.from_layout(LAYOUT)
     if checkpoint:
-        return ImageReward.from_checkpoint(checkpoint, LAYOUT.target.goal)
+        return ImageReward.from_checkpoint(checkpoint, LAYOUT.goal)
     config = reward_profile(profile, LAYOUT).config
     norm = MinMaxNormalizer()
     norm.add(IMAGE_KEY, np.zeros(3), np.full(3, 255.0))

@@ -1,9 +1,9 @@
 """What a task's arrays mean: the schema every component reads instead of a task's constants.
 
-A task (``gpc.tasks``) describes its data once as a ``TaskLayout``: where the agent and the
-object sit in the ``state`` vector and which entries are angles, the action box, the object's
-outline and goal pose (what a registration reward compares) and how rendered frames map to
-world coordinates. Models build their configs from it (``gpc.models`` never imports a task),
+A task (``gpc.tasks``) describes its data once as a ``TaskLayout``: where the agent and each
+object sit in the ``state`` vector and which entries are angles, the action box, each object's
+outline and goal (what a registration reward compares) and how rendered frames map to world
+coordinates. Models build their configs from it (``gpc.models`` never imports a task),
 and the harness hands it to every component, so a new task needs no line changed in ``models``.
 """
 
@@ -19,38 +19,65 @@ def _distinct_in_range(name: str, dims: tuple[int, ...], dim: int) -> None:
 
 @dataclass(frozen=True)
 class StateLayout:
-    """Entries of one ``state`` vector.
+    """Entries of one ``state`` vector that are not an object's: the agent, the angles, the action targets.
 
-    ``object_pose`` is the pose a registration reward places the object at: ``(x, y)`` or
-    ``(x, y, angle)``; ``action_targets`` are the entries an action is a position target for
-    (the agent a controller drives there); ``agent_xy`` must lead the vector (policies read the
-    agent as its first entries).
+    ``action_targets`` are the entries an action is a position target for (the agent a controller drives
+    there); ``agent_xy`` must lead the vector (policies read the agent as its first entries).
     """
 
     dim: int  # entries of one state vector
-    object_pose: tuple[int, ...]  # (x, y) or (x, y, angle) of the object the task is about
     agent_xy: tuple[int, ...] = ()  # the agent's position entries (leading), () for none
     angle_dims: tuple[int, ...] = ()  # entries that are angles (wrapped, fed as cos and sin)
     action_targets: tuple[int, ...] = ()  # entries an action is a target for (fed as action - state)
-    object_size: float = 1.0  # a length of the object's size (state units): scales object-frame features
 
     def __post_init__(self) -> None:
         if self.dim < 1:
             raise ValueError(f"state dim {self.dim}: must be at least 1")
-        for name in ("object_pose", "agent_xy", "angle_dims", "action_targets"):
+        for name in ("agent_xy", "angle_dims", "action_targets"):
             _distinct_in_range(name, getattr(self, name), self.dim)
-        if len(self.object_pose) not in (2, 3):
-            raise ValueError(f"object_pose {self.object_pose}: need (x, y) or (x, y, angle) entries")
-        if len(self.object_pose) == 3 and self.object_pose[2] not in self.angle_dims:
-            raise ValueError(f"object_pose {self.object_pose}: its third entry must be one of angle_dims {self.angle_dims}")
         if self.agent_xy != tuple(range(len(self.agent_xy))):
             raise ValueError(f"agent_xy {self.agent_xy}: the agent's entries must lead the state vector")
-        if self.object_size <= 0:
-            raise ValueError(f"object_size {self.object_size}: must be > 0")
+
+
+@dataclass(frozen=True)
+class ObjectLayout:
+    """One object a task is about: where it sits in the state vector, its outline, its default goal.
+
+    ``pose`` holds the entries its goal and its registration reward compare: ``(x, y)``, or
+    ``(x, y, angle)`` where the goal fixes the orientation too. ``angle`` is its orientation's entry
+    whether or not the goal counts it (object-frame features of a world model read it). ``goal``
+    is None where the goal is drawn per episode (observed as the ``goal`` key).
+    """
+
+    name: str
+    pose: tuple[int, ...]  # the state entries the goal compares: (x, y) or (x, y, angle)
+    vertices: tuple[tuple[float, float], ...]  # object-frame points (the registration loss is their mean distance)
+    goal: tuple[float, ...] | None = None  # the default goal, laid out as ``pose``; None: the goal varies per episode
+    angle: int | None = None  # its orientation's state entry (None: it has none, or the state holds none)
+    centroid: tuple[float, float] = (0.0, 0.0)  # the outline's area centroid in the object frame
+    size: float = 1.0  # a length of the object's size (state units): scales object-frame features
+
+    def __post_init__(self) -> None:
+        if len(self.pose) not in (2, 3) or len(set(self.pose)) != len(self.pose):
+            raise ValueError(f"object {self.name}: pose {self.pose} needs distinct (x, y) or (x, y, angle) entries")
+        if len(self.pose) == 3 and self.pose[2] != self.angle:
+            raise ValueError(f"object {self.name}: pose {self.pose} compares an angle, so its angle entry must be {self.pose[2]}")
+        if not self.vertices or any(len(v) != 2 for v in self.vertices):
+            raise ValueError(f"object {self.name}: vertices need (x, y) pairs")
+        if self.goal is not None and len(self.goal) != len(self.pose):
+            raise ValueError(f"object {self.name}: goal {self.goal} is not laid out as its pose {self.pose}")
+        if self.size <= 0:
+            raise ValueError(f"object {self.name}: size {self.size} must be > 0")
 
     @property
     def has_angle(self) -> bool:
-        return len(self.object_pose) == 3
+        """Whether its goal fixes its orientation."""
+        return len(self.pose) == 3
+
+    @property
+    def frame(self) -> tuple[int, ...]:
+        """``(x, y, angle)`` entries of the object's own frame, or () without an orientation."""
+        return () if self.angle is None else (self.pose[0], self.pose[1], self.angle)
 
 
 @dataclass(frozen=True)
@@ -64,19 +91,6 @@ class ActionBox:
     def __post_init__(self) -> None:
         if self.dim < 1 or not self.low < self.high:
             raise ValueError(f"action box: dim {self.dim} must be >= 1 and low {self.low} below high {self.high}")
-
-
-@dataclass(frozen=True)
-class PoseTarget:
-    """The object's outline and the goal a registration reward compares it with."""
-
-    vertices: tuple[tuple[float, float], ...]  # object-frame points (the registration loss is their mean distance)
-    goal: tuple[float, ...]  # default goal pose, laid out as StateLayout.object_pose
-    centroid: tuple[float, float] = (0.0, 0.0)  # the outline's area centroid in the object frame
-
-    def __post_init__(self) -> None:
-        if not self.vertices or any(len(v) != 2 for v in self.vertices):
-            raise ValueError("pose target vertices: need (x, y) pairs")
 
 
 @dataclass(frozen=True)
@@ -97,18 +111,51 @@ class FrameLayout:
 
 @dataclass(frozen=True)
 class TaskLayout:
-    """One task's data schema: the name checkpoints record, and the parts above."""
+    """One task's data schema: the name checkpoints record, and the parts above.
+
+    ``objects``: every object the task is about, in the order the goal (and a ``goal`` observation) lays
+    them out. Components that read a single object's pose (a world model's object-frame features, the
+    colour readout of frames) read the first.
+    """
 
     name: str
     state: StateLayout
     action: ActionBox
-    target: PoseTarget
+    objects: tuple[ObjectLayout, ...]
     frame: FrameLayout | None = None  # None: the task renders no frames
 
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError("a task layout needs a name")
-        if len(self.target.goal) != len(self.state.object_pose):
-            raise ValueError(f"goal {self.target.goal} is not laid out as object_pose {self.state.object_pose}")
+        if not self.objects:
+            raise ValueError(f"task {self.name}: a layout needs at least one object")
+        names = [o.name for o in self.objects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"task {self.name}: object names {names} repeat")
+        for obj in self.objects:
+            entries = obj.pose + (() if obj.angle is None else (obj.angle,))
+            if not all(0 <= d < self.state.dim for d in entries):
+                raise ValueError(f"object {obj.name}: entries {entries} lie outside the state's {self.state.dim}")
+            if obj.angle is not None and obj.angle not in self.state.angle_dims:
+                raise ValueError(f"object {obj.name}: angle entry {obj.angle} is not one of angle_dims {self.state.angle_dims}")
+        if len(set(self.pose_dims)) != len(self.pose_dims):
+            raise ValueError(f"task {self.name}: objects share pose entries {self.pose_dims}")
         if self.state.action_targets and len(self.state.action_targets) != self.action.dim:
             raise ValueError(f"action_targets {self.state.action_targets}: need one per action entry ({self.action.dim})")
+
+    @property
+    def primary(self) -> ObjectLayout:
+        """The object single-object components read (the first)."""
+        return self.objects[0]
+
+    @property
+    def pose_dims(self) -> tuple[int, ...]:
+        """Every object's goal entries, in order: how a goal vector (and a ``goal`` observation) is laid out."""
+        return tuple(d for obj in self.objects for d in obj.pose)
+
+    @property
+    def goal(self) -> tuple[float, ...] | None:
+        """The default goal of every object, laid out as ``pose_dims``; None where a goal varies per episode."""
+        if any(obj.goal is None for obj in self.objects):
+            return None
+        return tuple(g for obj in self.objects for g in obj.goal)  # type: ignore[union-attr]

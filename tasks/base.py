@@ -1,6 +1,6 @@
 """The task interface: everything outside ``tasks/`` receives a task as one ``Task`` and nothing else.
 
-A task brings its data schema (``TaskLayout``: state entries, action box, the object's
+A task brings its data schema (``TaskLayout``: state entries, action box, each object's
 outline and goal, frame geometry), its environment, how one step is observed, its scripted
 collectors (an expert and an explorer), the ground-truth simulator as a world model, a
 renderer for predicted futures and a one-line description for a vision-language model.
@@ -89,7 +89,7 @@ class Task:
     def row_shape(self, key: str) -> tuple[int, ...] | None:
         """The shape one step of ``key`` must have in this task's stores (None: not fixed, e.g. image sizes)."""
         known = {STATE_KEY: (self.layout.state.dim,), ACTION_KEY: (self.layout.action.dim,),
-                 GOAL_KEY: (len(self.layout.target.goal),), **self.row_shapes}
+                 GOAL_KEY: (len(self.layout.pose_dims),), **self.row_shapes}
         return known.get(key)
 
     def observed_keys(self, images: bool, goal: str) -> list[str]:

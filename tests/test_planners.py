@@ -111,7 +111,7 @@ def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
 
 def test_deployment_api_acts_on_one_history(ckpts):
     """The README's example: checkpoints + a reward -> ``act(obs_history)``, no simulator."""
-    reward = RegistrationReward(torch.tensor(LAYOUT.target.vertices), torch.tensor([256.0, 256.0, np.pi / 4]), LAYOUT.state.object_pose)
+    reward = RegistrationReward(torch.tensor(LAYOUT.primary.vertices), torch.tensor([256.0, 256.0, np.pi / 4]), LAYOUT.pose_dims)
     p = load_planner(ckpts["policy"], ckpts["wm"], reward, PlannerConfig(kind="rank-opt", num_proposals=3, opt_steps=2))
     obs = {k: v[0] for k, v in histories((100000,)).items()}
     chunk = p.act(obs, torch.Generator().manual_seed(0))
@@ -221,7 +221,7 @@ def test_recipe_is_picklable_and_labels(ckpts):
     recipe = PlannerRecipe(ckpts["policy"], PlannerConfig(kind="rank", num_proposals=7), "gt-sim")
     assert pickle.loads(pickle.dumps(recipe)).label == "gt-sim K=7"
     assert dataclasses.replace(recipe, planner=None, world_model=None).label == "bc"
-    assert len(LAYOUT.target.vertices) == 8
+    assert len(LAYOUT.primary.vertices) == 8
 
 
 def test_cli_rank_with_a_vlm_reward_against_a_loopback_server(ckpts, tmp_path):

@@ -137,7 +137,7 @@ def test_image_reward_shapes_goals_aggregation_and_gradients(trained, store):
     assert torch.allclose(reward(futures, goal=poses[:, -1]), torch.zeros(3), atol=1e-3)
     # the same numbers as the state reward on the predicted poses (one reward interface)
     states = torch.cat([torch.zeros(3, 2, 2), poses], dim=-1)
-    assert torch.allclose(RegistrationReward(geometry.TEE_BOXES, GOAL, LAYOUT.state.object_pose)(states), score.detach(), atol=1e-4)
+    assert torch.allclose(RegistrationReward(geometry.TEE_BOXES, GOAL, LAYOUT.pose_dims)(states), score.detach(), atol=1e-4)
     other = ImageReward(trained.module.predictor, goal=[100.0, 100.0, 0.0])
     assert not torch.allclose(other(futures), score.detach())
     with pytest.raises(ValueError, match=r"expected \(K, T, 3, S, S\)"):

@@ -220,7 +220,7 @@ def test_pusht_frames_from_the_real_renderer_and_the_registration_fallback():
     states = torch.tensor([[[100, 100, 256, 256, np.pi / 4]], [[400, 120, 300, 200, 1.0]],
                            [[200, 420, 150, 330, 2.5]]], dtype=torch.float64).repeat(1, 3, 1)  # (K=3, T=3, 5)
     goal = torch.tensor(GOAL_POSE, dtype=torch.float64)
-    registration = RegistrationReward(torch.tensor(TEE_BOXES).reshape(-1, 2), goal, LAYOUT.state.object_pose)
+    registration = RegistrationReward(torch.tensor(TEE_BOXES).reshape(-1, 2), goal, LAYOUT.pose_dims)
     with ScriptedChatServer([Reply("2"), Reply("no idea")]) as server:
         vlm = VLMReward(VLMConfig(base_url=server.base_url, model="test-vl", timeout_s=2.0, max_retries=0,
                                   api_key_env=KEY_ENV),

@@ -183,7 +183,7 @@ def test_rollout_and_reward_are_differentiable_in_the_actions(phase2, store):
     model = phase2.module.eval()
     history, actions = _history(store)
     actions = actions.expand(4, -1, -1).clone().requires_grad_(True)
-    score = RegistrationReward(TEE, GOAL, LAYOUT.state.object_pose)(model.rollout(history, actions))
+    score = RegistrationReward(TEE, GOAL, LAYOUT.pose_dims)(model.rollout(history, actions))
     score.sum().backward()
     assert score.shape == (4,) and torch.isfinite(actions.grad).all()
     assert actions.grad.abs().sum() > 0 and actions.grad[:, 0].abs().sum() > 0  # the first action matters

@@ -14,15 +14,15 @@ import cv2
 import numpy as np
 import torch
 
-from gpc.datasets.layout import ActionBox, FrameLayout, PoseTarget, StateLayout, TaskLayout
+from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 
 SIZE, SPEED, GOAL, SUCCESS = 100.0, 3.0, (70.0, 30.0), 3.0
 LAYOUT = TaskLayout(
     name="reach",
-    state=StateLayout(dim=2, object_pose=(0, 1), agent_xy=(0, 1), action_targets=(0, 1), object_size=10.0),
+    state=StateLayout(dim=2, agent_xy=(0, 1), action_targets=(0, 1)),
     action=ActionBox(dim=2, low=0.0, high=SIZE),
-    target=PoseTarget(vertices=((0.0, 0.0),), goal=GOAL),
+    objects=(ObjectLayout(name="point", pose=(0, 1), vertices=((0.0, 0.0),), goal=GOAL, size=10.0),),
     frame=FrameLayout(extent=(0.0, SIZE), marker_size=4.0, agent_colours=((30, 60, 220),)),
 )
 

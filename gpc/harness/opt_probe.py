@@ -26,7 +26,7 @@ from gpc.models.planning.ascent import AscentTrace
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Plan
-from gpc.models.rewards.registration import registration_distance
+from gpc.models.rewards.registration import layout_registration
 from gpc.tasks import get_task
 from gpc.tasks.base import Task
 
@@ -95,9 +95,7 @@ class ProbingPlanner:
         layout = self.task.layout
         nan = torch.full(predicted.shape[:2], float("nan"))
         if predicted.dim() == 4:  # state futures
-            pose = list(layout.state.object_pose)
-            vertices = torch.as_tensor(np.asarray(layout.target.vertices), dtype=torch.float32)
-            return registration_distance(predicted[:, :, -1, pose], true_states[:, :, -1, pose], vertices), nan
+            return layout_registration(predicted[:, :, -1], true_states[:, :, -1], layout), nan
         frameskip = true_states.shape[2] // predicted.shape[2]
         last = true_states[:, :, predicted.shape[2] * frameskip - 1].numpy()
         frames = np.stack([[self.task.render_state(s) for s in row] for row in last])  # (B, N, S0, S0, C)

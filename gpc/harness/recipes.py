@@ -75,7 +75,7 @@ def build_reward(spec: RewardSpec, task: Task) -> Any:
         from gpc.models.rewards.learned import ImageReward
 
         assert spec.checkpoint is not None  # RewardSpec refuses a learned reward without one
-        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.target.goal, config, task=task.name)
+        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.goal, config, task=task.name)
     from gpc.models.rewards.vlm import VLMReward
 
     return VLMReward(spec.vlm, render=task.render_state, fallback=registration, task_description=task.description)

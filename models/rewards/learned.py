@@ -92,12 +92,12 @@ class RewardPredictorConfig(PlainConfig):
 
     def with_task(self, layout: TaskLayout) -> RewardPredictorConfig:
         """A copy that knows the task: its name, the object's pose entries, outline and default goal, the frame's span."""
-        if not layout.state.has_angle or layout.frame is None:
-            raise ValueError(f"the learned image reward reads an (x, y, angle) pose from frames; task {layout.name} "
-                             "has no angle or renders no frames")
-        return dataclasses.replace(self, task=layout.name, pose_dims=layout.state.object_pose,
-                                   vertices=layout.target.vertices, goal=tuple(layout.target.goal),  # type: ignore[arg-type]
-                                   frame_extent=layout.frame.span)
+        obj = layout.primary
+        if len(layout.objects) != 1 or not obj.has_angle or layout.frame is None:
+            raise ValueError(f"the learned image reward reads one object's (x, y, angle) pose from frames; task {layout.name} "
+                             "has several objects, no angle in its goal or renders no frames")
+        return dataclasses.replace(self, task=layout.name, pose_dims=obj.pose, vertices=obj.vertices,
+                                   goal=obj.goal, frame_extent=layout.frame.span)  # type: ignore[arg-type]
 
     def check_task(self) -> None:
         if not self.vertices or self.goal is None or not self.pose_dims:

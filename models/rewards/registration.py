@@ -14,7 +14,9 @@ rewards into ``(K,)`` scores. ``RegistrationReward`` reads the pose from predict
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import nn
@@ -70,40 +72,58 @@ def aggregate(rewards: torch.Tensor, config: RewardConfig) -> torch.Tensor:
 
 
 class PoseReward(nn.Module):
-    """``-registration`` of an object pose read from each predicted step, aggregated over the steps.
+    """``-registration`` of the objects' poses read from each predicted step, aggregated over the steps.
 
-    Subclasses say how a future ``(K, T, ...)`` becomes poses ``(K, T, 3)`` (``poses``): read
+    Subclasses say how a future ``(K, T, ...)`` becomes poses ``(K, T, P)`` (``poses``): read
     from a state vector (``RegistrationReward``) or predicted from a frame (``ImageReward``
-    in ``gpc.models.rewards.learned``). ``vertices``: ``(V, 2)`` object-frame points (Push-T:
-    the T's 8 box corners); ``goal``: ``(P,)`` pose (``P`` = 3 with an angle, 2 without). A call
-    may pass its own goals ``(P,)`` or ``(K, P)`` (a goal per candidate, for tasks whose goal
-    varies per episode).
+    in ``gpc.models.rewards.learned``). ``vertices``: one object's ``(V, 2)`` object-frame points
+    (Push-T: the T's 8 box corners), or a sequence of them, one per object; ``sizes``: each object's
+    pose entries (3 with an angle, 2 without; default: the goal's length, one object). A step's
+    registration is the mean over the objects. ``goal``: ``(P,)``, the objects' poses laid out in
+    order, or None where the task draws a goal per episode: a call passes its goals ``(P,)`` or
+    ``(K, P)`` (a goal per candidate).
     """
 
-    vertices: torch.Tensor  # registered buffers
-    goal: torch.Tensor
+    goal: torch.Tensor | None  # registered buffers
 
-    def __init__(self, vertices: torch.Tensor, goal: torch.Tensor, config: RewardConfig = RewardConfig()) -> None:
+    def __init__(self, vertices: torch.Tensor | Sequence[torch.Tensor], goal: torch.Tensor | None,
+                 config: RewardConfig = RewardConfig(), sizes: Sequence[int] | None = None) -> None:
         super().__init__()
-        vertices = torch.as_tensor(vertices, dtype=torch.float32).reshape(-1, 2)
-        goal = torch.as_tensor(goal, dtype=torch.float32)
-        if goal.shape not in ((2,), (3,)):
-            raise ValueError(f"goal pose: expected (3,) = (x, y, theta) or (2,) = (x, y), got {tuple(goal.shape)}")
+        shapes = [vertices] if _points(vertices) else list(vertices)
+        goal = None if goal is None else torch.as_tensor(goal, dtype=torch.float32)
+        if sizes is None:
+            if goal is None or len(shapes) != 1:
+                raise ValueError("pose sizes: give each object's (sizes) where there are several objects or no default goal")
+            sizes = (goal.shape[0],)
+        if len(sizes) != len(shapes) or any(n not in (2, 3) for n in sizes):
+            raise ValueError(f"pose sizes {tuple(sizes)}: need 2 (x, y) or 3 (x, y, theta) for each of {len(shapes)} objects")
+        if goal is not None and goal.shape != (sum(sizes),):
+            raise ValueError(f"goal pose: expected ({sum(sizes)},) = the objects' poses laid out in order, got {tuple(goal.shape)}")
         self.config = config
-        self.register_buffer("vertices", vertices)
+        self.sizes = tuple(int(n) for n in sizes)
+        for i, points in enumerate(shapes):
+            self.register_buffer(f"vertices_{i}", torch.as_tensor(points, dtype=torch.float32).reshape(-1, 2))
         self.register_buffer("goal", goal)
 
+    @property
+    def vertices(self) -> list[torch.Tensor]:
+        """Each object's ``(V, 2)`` points."""
+        return [getattr(self, f"vertices_{i}") for i in range(len(self.sizes))]
+
     def poses(self, futures: torch.Tensor) -> torch.Tensor:
-        """``(K, T, ...)`` predicted futures -> ``(K, T, P)`` object poses ``(x, y[, theta])``."""
+        """``(K, T, ...)`` predicted futures -> ``(K, T, P)`` object poses ``(x, y[, theta])``, object after object."""
         raise NotImplementedError
 
     def per_step(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
         """``(K, T, ...)`` predicted futures -> ``(K, T)`` rewards (0 at the goal, negative elsewhere)."""
         poses = self.poses(futures)
+        if goal is None and self.goal is None:
+            raise ValueError("this reward's goal varies per episode: pass the episode's goal (an observation 'goal')")
         goal = self.goal if goal is None else torch.as_tensor(goal, dtype=poses.dtype, device=poses.device)
-        if goal.dim() == 2:  # (K, 3): one goal per candidate, the same for all its steps
+        assert goal is not None
+        if goal.dim() == 2:  # (K, P): one goal per candidate, the same for all its steps
             goal = goal[:, None]
-        return -registration_distance(poses, goal.to(poses.dtype), self.vertices.to(poses.dtype))
+        return -registration(poses, goal.to(poses.dtype), [v.to(poses.dtype) for v in self.vertices], self.sizes)
 
     def forward(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
         """``(K, T, ...)`` predicted futures -> ``(K,)`` scores, higher is better."""
@@ -112,24 +132,53 @@ class PoseReward(nn.Module):
         return aggregate(self.per_step(futures, goal), self.config)
 
 
-class RegistrationReward(PoseReward):
-    """``-registration`` of the predicted object pose against the goal, aggregated over the predicted steps.
+def _points(value: Any) -> bool:
+    """Whether ``value`` is one object's points (an array, or pairs of numbers) rather than a sequence of objects' points."""
+    if hasattr(value, "ndim"):
+        return True
+    first = value[0] if len(value) else None
+    return first is not None and len(first) == 2 and all(isinstance(x, (int, float)) for x in first)
 
-    Futures are states ``(K, T, D)``; the pose sits at ``pose_dims``. See ``PoseReward`` for the
-    vertices, the goal and per-candidate goals; ``from_layout`` takes all three from a task.
+
+def registration(poses: torch.Tensor, goals: torch.Tensor, vertices: Sequence[torch.Tensor], sizes: Sequence[int]) -> torch.Tensor:
+    """Mean over the objects of their registration distance: poses ``(..., P)``, goals broadcastable, each
+    object's points ``(V_i, 2)`` and pose entries ``sizes[i]`` -> ``(...)``."""
+    if len(sizes) == 1:  # one object (Push-T): its distance as it is
+        return registration_distance(poses, goals, vertices[0])
+    start, parts = 0, []
+    for points, n in zip(vertices, sizes):
+        parts.append(registration_distance(poses[..., start:start + n], goals[..., start:start + n], points))
+        start += n
+    return torch.stack(parts).mean(dim=0)
+
+
+def layout_registration(a: torch.Tensor, b: torch.Tensor, layout: TaskLayout) -> torch.Tensor:
+    """Registration distance between the objects in states ``a`` and ``b`` ``(..., D)`` of a task -> ``(...)``."""
+    pose = list(layout.pose_dims)
+    vertices = [torch.tensor(o.vertices, dtype=a.dtype, device=a.device) for o in layout.objects]
+    return registration(a[..., pose], b[..., pose], vertices, [len(o.pose) for o in layout.objects])
+
+
+class RegistrationReward(PoseReward):
+    """``-registration`` of the predicted objects' poses against the goal, aggregated over the predicted steps.
+
+    Futures are states ``(K, T, D)``; the poses sit at ``pose_dims`` (every object's entries, in order).
+    See ``PoseReward`` for the vertices, the goal and per-candidate goals; ``from_layout`` takes all from a task.
     """
 
-    def __init__(self, vertices: torch.Tensor, goal: torch.Tensor, pose_dims: tuple[int, ...],
-                 config: RewardConfig = RewardConfig()) -> None:
-        super().__init__(vertices, goal, config)
-        if len(pose_dims) != self.goal.shape[0] or len(set(pose_dims)) != len(pose_dims) or min(pose_dims) < 0:
-            raise ValueError(f"pose_dims {pose_dims}: need {self.goal.shape[0]} distinct state indices, as the goal has")
+    def __init__(self, vertices: torch.Tensor | Sequence[torch.Tensor], goal: torch.Tensor | None, pose_dims: tuple[int, ...],
+                 config: RewardConfig = RewardConfig(), sizes: Sequence[int] | None = None) -> None:
+        super().__init__(vertices, goal, config, sizes)
+        if len(pose_dims) != sum(self.sizes) or len(set(pose_dims)) != len(pose_dims) or min(pose_dims) < 0:
+            raise ValueError(f"pose_dims {pose_dims}: need {sum(self.sizes)} distinct state indices, as the goal has")
         self.pose_dims = tuple(pose_dims)
 
     @classmethod
     def from_layout(cls, layout: TaskLayout, config: RewardConfig = RewardConfig()) -> RegistrationReward:
-        """The task's object outline, default goal and pose entries."""
-        return cls(torch.tensor(layout.target.vertices), torch.tensor(layout.target.goal), layout.state.object_pose, config)
+        """The task's objects: their outlines, default goals (if fixed) and pose entries."""
+        goal = None if layout.goal is None else torch.tensor(layout.goal)
+        return cls([torch.tensor(o.vertices) for o in layout.objects], goal, layout.pose_dims, config,
+                   [len(o.pose) for o in layout.objects])
 
     def poses(self, states: torch.Tensor) -> torch.Tensor:
         if states.dim() != 3 or states.shape[-1] <= max(self.pose_dims):

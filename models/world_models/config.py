@@ -104,13 +104,13 @@ class DynamicsConfig:
     @classmethod
     def for_layout(cls, layout: TaskLayout, frame: str | None = None, **sizes: Any) -> DynamicsConfig:
         """The task's state layout with the given network sizes; ``frame="object"`` (the default when the
-        object has an angle) adds its object-frame features."""
-        s = layout.state
-        if frame == "object" and not s.has_angle:
-            raise ValueError(f"--frame object needs an object with an angle; task {layout.name}'s has none (use world)")
-        use_object = s.has_angle if frame is None else frame == "object"
+        first object has an angle) adds its object-frame features."""
+        s, obj = layout.state, layout.primary
+        if frame == "object" and not obj.frame:
+            raise ValueError(f"--frame object needs an object with an angle; task {layout.name}'s {obj.name} has none (use world)")
+        use_object = bool(obj.frame) if frame is None else frame == "object"
         return cls(state_dim=s.dim, action_dim=layout.action.dim, angle_dims=s.angle_dims, action_target_dims=s.action_targets,
-                   object_frame=s.object_pose if use_object else (), object_length=s.object_size, **sizes)
+                   object_frame=obj.frame if use_object else (), object_length=obj.size, **sizes)
 
     @property
     def object_points(self) -> int:

@@ -19,10 +19,10 @@ import numpy as np
 import torch
 
 from gpc.datasets.errors import DataError
-from gpc.datasets.layout import StateLayout, TaskLayout
+from gpc.datasets.layout import TaskLayout
 from gpc.datasets.sequence import HeldOutOf, WindowSpec, held_out_by, recorded_held_out, window_indices, window_starts
 from gpc.datasets.windows import load_stores
-from gpc.models.rewards.registration import registration_distance
+from gpc.models.rewards.registration import layout_registration
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import ACTION_KEY, STATE_KEY, wrap_angle
 
@@ -30,17 +30,17 @@ SPLITS = ("val", "all")
 METRICS = {"object_px": "object px", "object_deg": "object deg", "agent_px": "agent px", "registration_px": "vertices px"}
 
 
-def _errors(pred: torch.Tensor, true: torch.Tensor, layout: StateLayout, vertices: torch.Tensor | None) -> dict[str, torch.Tensor]:
-    """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors."""
-    pose = list(layout.object_pose)
-    out = {"object_px": (pred[..., pose[:2]] - true[..., pose[:2]]).norm(dim=-1)}
-    if layout.has_angle:
-        out["object_deg"] = wrap_angle(pred[..., pose[2]] - true[..., pose[2]]).abs() * (180.0 / math.pi)
-    if layout.agent_xy:
-        ag = list(layout.agent_xy)
+def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
+    """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors (an object metric: the mean over the task's objects)."""
+    out = {"object_px": torch.stack([(pred[..., list(o.pose[:2])] - true[..., list(o.pose[:2])]).norm(dim=-1)
+                                     for o in layout.objects]).mean(dim=0)}
+    turning = [o.angle for o in layout.objects if o.angle is not None]
+    if turning:
+        out["object_deg"] = torch.stack([wrap_angle(pred[..., a] - true[..., a]).abs() for a in turning]).mean(dim=0) * (180.0 / math.pi)
+    if layout.state.agent_xy:
+        ag = list(layout.state.agent_xy)
         out["agent_px"] = (pred[..., ag] - true[..., ag]).norm(dim=-1)
-    if vertices is not None:
-        out["registration_px"] = registration_distance(pred[..., pose], true[..., pose], vertices)
+    out["registration_px"] = layout_registration(pred, true, layout)
     return out
 
 
@@ -97,14 +97,13 @@ def evaluate_rollouts(
     h = module.n_obs_steps
     states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
     actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
-    verts = torch.tensor(layout.target.vertices, dtype=torch.float32)
     sums: dict[str, dict[str, torch.Tensor]] = {"model": {}, "baseline": {}}
     for lo in range(0, len(idx), batch_size):
         hist, acts, true = states[lo : lo + batch_size, :h], actions[lo : lo + batch_size], states[lo : lo + batch_size, h:]
         pred = module.rollout(hist, acts).cpu()
         still = hist[:, -1:].expand_as(true)
         for name, guess in (("model", pred), ("baseline", still)):
-            for metric, err in _errors(guess, true, layout.state, verts).items():
+            for metric, err in _errors(guess, true, layout).items():
                 sums[name][metric] = sums[name].get(metric, 0.0) + err.double().sum(dim=0)
     n = len(idx)
     means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}

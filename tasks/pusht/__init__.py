@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gpc.datasets.layout import ActionBox, FrameLayout, PoseTarget, StateLayout, TaskLayout
+from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.pusht import geometry, render
 from gpc.tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
@@ -30,12 +30,13 @@ if ENV_ID not in gym.registry:
 # State [agent x, y, block x, y, block angle]; actions are agent target positions in the 512 px workspace.
 LAYOUT = TaskLayout(
     name="pusht",
-    state=StateLayout(dim=5, object_pose=(2, 3, 4), agent_xy=(0, 1), angle_dims=(4,), action_targets=(0, 1),
-                      object_size=50.0),  # about the T's size in px
+    state=StateLayout(dim=5, agent_xy=(0, 1), angle_dims=(4,), action_targets=(0, 1)),
     action=ActionBox(dim=2, low=0.0, high=float(geometry.WORKSPACE)),
-    target=PoseTarget(vertices=tuple((float(x), float(y)) for x, y in geometry.TEE_BOXES.reshape(-1, 2)),
-                      goal=tuple(float(g) for g in geometry.GOAL_POSE),
-                      centroid=(float(geometry.TEE_CENTROID[0]), float(geometry.TEE_CENTROID[1]))),
+    objects=(ObjectLayout(name="tee", pose=(2, 3, 4), angle=4,
+                          vertices=tuple((float(x), float(y)) for x, y in geometry.TEE_BOXES.reshape(-1, 2)),
+                          goal=tuple(float(g) for g in geometry.GOAL_POSE),
+                          centroid=(float(geometry.TEE_CENTROID[0]), float(geometry.TEE_CENTROID[1])),
+                          size=50.0),),  # about the T's size in px
     # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2.
     frame=FrameLayout(extent=(0.0, float(geometry.WORKSPACE)), marker_size=AGENT_RADIUS,
                       object_colours=(render.BLOCK_FILL, render.BLOCK_EDGE),
