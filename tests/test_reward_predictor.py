@@ -214,3 +214,44 @@ def test_evaluation_reads_the_human_data(trained, human_data):
     """Diffusion Policy's store keeps frames as float32 0..255; they are read as the uint8 frames of ours."""
     report = evaluate_reward_predictor(trained.module, [human_data], split="all", episodes=1, stride=20)
     assert report["episodes"] == 1 and report["frames"] >= 3 and math.isfinite(report["registration_mae_px"])
+
+
+def _two_object_layout():
+    """A square whose goal ignores its turn, and a disc: the swap task's shape, a goal per episode."""
+    from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
+
+    square = ((-30.0, -30.0), (30.0, -30.0), (30.0, 30.0), (-30.0, 30.0))
+    return TaskLayout(name="two", state=StateLayout(dim=7, agent_xy=(0, 1), angle_dims=(4,), action_targets=(0, 1)),
+                      action=ActionBox(dim=2, low=0.0, high=512.0),
+                      objects=(ObjectLayout("cube", pose=(2, 3, 4), angle=4, vertices=square),
+                               ObjectLayout("sphere", pose=(5, 6), vertices=((0.0, 0.0),))),
+                      frame=FrameLayout(extent=(0.0, 512.0), marker_size=15.0))
+
+
+def test_a_predictor_of_several_objects_reads_each_pose_and_scores_against_per_episode_goals():
+    from gpc.datasets.normalizer import MinMaxNormalizer
+    from gpc.models.rewards.learned import PosePredictor, pose_errors
+
+    layout = _two_object_layout()
+    config = reward_profile("tiny", layout).config
+    assert config.sizes == (3, 2) and config.pose_dims == (2, 3, 4, 5, 6) and config.goal is None
+    assert [len(v) for v in config.object_vertices] == [4, 1]
+    rng = np.random.default_rng(0)
+    states = torch.tensor(np.c_[rng.uniform(0, 512, (8, 4)), rng.uniform(-3, 3, 8), rng.uniform(0, 512, (8, 2))], dtype=torch.float32)
+    normalizer = MinMaxNormalizer.fit({"img": np.zeros((2, 3)), "state": states.numpy()}, image_keys=("img",))
+    predictor = PosePredictor(config, normalizer)
+    labels = predictor.targets(states)
+    assert labels.shape == (8, 6)  # cube x, y, cos, sin; sphere x, y
+    back = predictor.to_pose(labels)  # labels read back are the states' poses (angles wrapped)
+    torch.testing.assert_close(back[:, [0, 1, 3, 4]], states[:, [2, 3, 5, 6]], atol=1e-3, rtol=0)
+    torch.testing.assert_close(torch.cos(back[:, 2]), torch.cos(states[:, 4]), atol=1e-5, rtol=0)
+    errors = pose_errors(back, states[:, [2, 3, 4, 5, 6]], [torch.tensor(v) for v in config.object_vertices], None, config.sizes)
+    assert errors["vertex_px"].abs().max() < 1e-2 and "registration_true_px" not in errors
+    reward = ImageReward(predictor.requires_grad_(False))
+    frames = torch.rand(3, 2, 3, 32, 32, requires_grad=True)
+    with pytest.raises(ValueError, match="pass the episode's goal"):
+        reward(frames)
+    scores = reward(frames, torch.tensor([[100.0, 100.0, 0.0, 300.0, 300.0]] * 3))
+    assert scores.shape == (3,) and bool((scores < 0).all())
+    scores.sum().backward()
+    assert frames.grad is not None and frames.grad.abs().sum() > 0

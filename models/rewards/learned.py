@@ -1,7 +1,8 @@
-"""The learned image reward: a ResNet18 + MLP that reads an object's pose from one frame.
+"""The learned image reward: a ResNet18 + MLP that reads the task's objects' poses from one frame.
 
-The network predicts the object pose ``(x, y, cos theta, sin theta)`` of a frame (labels:
-the recorded state's pose, ``config.pose_dims``; the angle as cos, sin has no wrap-around).
+The network predicts each object's pose ``(x, y[, cos theta, sin theta])`` of a frame (labels:
+the recorded state's pose entries, ``config.pose_dims``, object after object (``pose_sizes``);
+an angle as cos, sin has no wrap-around).
 ``ImageReward`` turns the predicted pose into ``-registration`` against the goal with
 ``gpc.models.rewards.registration``'s ``registration_distance`` and aggregates it like ``RegistrationReward``
 (``RewardConfig``: final step or discounted sum), so it is differentiable w.r.t. the pixels
@@ -26,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,7 +41,7 @@ from gpc.datasets.layout import TaskLayout
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.resnet import ResNet18Trunk
-from gpc.models.rewards.registration import PoseReward, RewardConfig, registration_distance
+from gpc.models.rewards.registration import PoseReward, RewardConfig, registration
 from gpc.models.training.config import OptimConfig, Profile, RunConfig
 from gpc.models.training.config_io import PlainConfig
 from gpc.models.training.module import TrainableModule
@@ -61,9 +62,11 @@ class RewardPredictorConfig(PlainConfig):
     resnet_width: int = 32  # ResNet18 stem width (64 is the standard network)
     pool: str = "flatten"  # flatten: the whole final feature map (keeps where things are); avg: global average
     mlp_dims: tuple[int, ...] = (512, 256, 128)  # hidden layers of the head (ReLU) before the 4 pose outputs
-    pose_dims: tuple[int, ...] = ()  # state entries of the object's x, y, theta (the labels; from the task)
-    vertices: tuple[tuple[float, float], ...] = ()  # object-frame points of the registration loss (from the task)
-    goal: tuple[float, float, float] | None = None  # default goal pose (from the task)
+    pose_dims: tuple[int, ...] = ()  # state entries of every object's x, y[, theta], in order (the labels; from the task)
+    pose_sizes: tuple[int, ...] = ()  # entries per object (2 or 3); () is one object, all of pose_dims
+    vertices: tuple[tuple[float, float], ...] = ()  # object-frame points of the registration loss, object after object
+    vertex_counts: tuple[int, ...] = ()  # points per object; () is one object, all of vertices
+    goal: tuple[float, ...] | None = None  # default goal, laid out as pose_dims (None: the task draws one per episode)
     frame_extent: float | None = None  # world units a frame spans (from the task); needed for label-consistent shifts
     shift_px: float = 4.0  # training: uniform random translation up to this many input pixels (0: none)
     blur_prob: float = 0.5  # training: share of frames blurred
@@ -79,29 +82,49 @@ class RewardPredictorConfig(PlainConfig):
             raise ValueError(f"pool {self.pool!r}: use one of {', '.join(POOLS)}")
         if any(d < 1 for d in self.mlp_dims):
             raise ValueError(f"mlp_dims {self.mlp_dims}: every hidden layer needs at least 1 unit")
-        if self.pose_dims and (len(self.pose_dims) != 3 or len(set(self.pose_dims)) != 3 or min(self.pose_dims) < 0):
-            raise ValueError(f"pose_dims {self.pose_dims}: need three distinct state indices (x, y, theta)")
+        if self.pose_dims and (len(set(self.pose_dims)) != len(self.pose_dims) or min(self.pose_dims) < 0
+                               or sum(self.sizes) != len(self.pose_dims) or any(n not in (2, 3) for n in self.sizes)):
+            raise ValueError(f"pose_dims {self.pose_dims}: need distinct state indices, (x, y) or (x, y, theta) per object "
+                             f"(pose_sizes {self.pose_sizes})")
         if any(len(v) != 2 for v in self.vertices):
             raise ValueError("vertices: need (x, y) pairs")
-        if self.goal is not None and len(self.goal) != 3:
-            raise ValueError(f"goal {self.goal}: need (x, y, theta)")
+        if self.vertex_counts and (sum(self.vertex_counts) != len(self.vertices) or len(self.vertex_counts) != len(self.sizes)):
+            raise ValueError(f"vertex_counts {self.vertex_counts}: need one count per object, adding up to the vertices")
+        if self.goal is not None and len(self.goal) != len(self.pose_dims):
+            raise ValueError(f"goal {self.goal}: need one value per pose entry {self.pose_dims}")
         if self.frame_extent is not None and self.frame_extent <= 0:
             raise ValueError(f"frame_extent {self.frame_extent}: must be positive")
         if self.shift_px < 0 or self.blur_sigma < 0 or not 0.0 <= self.blur_prob <= 1.0:
             raise ValueError("shift_px and blur_sigma must be >= 0 and blur_prob in [0, 1]")
 
+    @property
+    def sizes(self) -> tuple[int, ...]:
+        """Pose entries per object."""
+        return self.pose_sizes or (len(self.pose_dims),)
+
+    @property
+    def object_vertices(self) -> list[tuple[tuple[float, float], ...]]:
+        """Each object's outline points."""
+        counts, out, start = self.vertex_counts or (len(self.vertices),), [], 0
+        for n in counts:
+            out.append(self.vertices[start:start + n])
+            start += n
+        return out
+
     def with_task(self, layout: TaskLayout) -> RewardPredictorConfig:
-        """A copy that knows the task: its name, the object's pose entries, outline and default goal, the frame's span."""
-        obj = layout.primary
-        if len(layout.objects) != 1 or not obj.has_angle or layout.frame is None:
-            raise ValueError(f"the learned image reward reads one object's (x, y, angle) pose from frames; task {layout.name} "
-                             "has several objects, no angle in its goal or renders no frames")
-        return dataclasses.replace(self, task=layout.name, pose_dims=obj.pose, vertices=obj.vertices,
-                                   goal=obj.goal, frame_extent=layout.frame.span)  # type: ignore[arg-type]
+        """A copy that knows the task: its name, the objects' pose entries, outlines and default goal, the frame's span."""
+        if layout.frame is None:
+            raise ValueError(f"the learned image reward reads poses from frames; task {layout.name} renders none")
+        several = len(layout.objects) > 1  # one object keeps the fields a single-object config always had
+        return dataclasses.replace(
+            self, task=layout.name, pose_dims=layout.pose_dims, goal=layout.goal, frame_extent=layout.frame.span,
+            pose_sizes=tuple(len(o.pose) for o in layout.objects) if several else (),
+            vertices=tuple(v for o in layout.objects for v in o.vertices),
+            vertex_counts=tuple(len(o.vertices) for o in layout.objects) if several else ())
 
     def check_task(self) -> None:
-        if not self.vertices or self.goal is None or not self.pose_dims:
-            raise ValueError("the reward predictor's config has no pose entries, vertices or goal; fill them with "
+        if not self.vertices or not self.pose_dims:
+            raise ValueError("the reward predictor's config has no pose entries or vertices; fill them with "
                              "config.with_task(layout)")
         if self.shift_px > 0 and self.frame_extent is None:
             raise ValueError("shift augmentation needs frame_extent (the world units a frame spans); see with_task")
@@ -165,10 +188,10 @@ def random_blur(x: torch.Tensor, prob: float, max_sigma: float) -> torch.Tensor:
 
 
 class PosePredictor(nn.Module):
-    """Normaliser + ResNet18 + MLP: ``(N, 3, H, W)`` frames in [0, 1] -> ``(N, 3)`` poses ``(x, y, theta)``.
+    """Normaliser + ResNet18 + MLP: ``(N, 3, H, W)`` frames in [0, 1] -> ``(N, P)`` poses, each object's ``(x, y[, theta])``.
 
     The normaliser holds the fixed ``img`` range (0..255) and the ``state`` range of the
-    training data (the label's x, y are predicted in [-1, 1] of that range).
+    training data (the labels' x, y are predicted in [-1, 1] of that range).
     """
 
     def __init__(self, config: RewardPredictorConfig, normalizer: MinMaxNormalizer | None = None) -> None:
@@ -183,8 +206,11 @@ class PosePredictor(nn.Module):
         layers: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Linear(a, b), nn.ReLU()]
-        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], 4))
-        self._xy = list(config.pose_dims[:2])
+        self.sizes = config.sizes
+        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], sum(2 + 2 * (n == 3) for n in self.sizes)))
+        starts = [sum(self.sizes[:i]) for i in range(len(self.sizes))]
+        self.xy_dims = [config.pose_dims[s + j] for s in starts for j in (0, 1)]  # every object's x, y entries
+        self._angles = [config.pose_dims[s + 2] for s, n in zip(starts, self.sizes) if n == 3]
 
     def check_normalizer(self) -> None:
         missing = [k for k in (IMAGE_KEY, STATE_KEY) if k not in self.normalizer.keys()]
@@ -200,52 +226,72 @@ class PosePredictor(nn.Module):
         return x * (255.0 * scale.to(x.dtype))[:, None, None] + offset.to(x.dtype)[:, None, None]
 
     def raw(self, x: torch.Tensor) -> torch.Tensor:
-        """Prepared ``(N, 3, S, S)`` -> ``(N, 4)`` network outputs ``(x_n, y_n, cos, sin)``."""
+        """Prepared ``(N, 3, S, S)`` -> ``(N, O)`` network outputs, each object's ``(x_n, y_n[, cos, sin])``."""
         features = self.trunk(x)
         features = features.flatten(1) if self.config.pool == "flatten" else features.mean(dim=(2, 3))
         return self.head(features)
 
     def targets(self, states: torch.Tensor) -> torch.Tensor:
-        """``(N, D)`` raw states -> ``(N, 4)`` labels ``(x_n, y_n, cos theta, sin theta)``."""
-        xy = states[:, self._xy] * self.normalizer.scales[STATE_KEY][self._xy] + self.normalizer.offsets[STATE_KEY][self._xy]
-        theta = states[:, self.config.pose_dims[2]]
-        return torch.cat([xy, torch.cos(theta)[:, None], torch.sin(theta)[:, None]], dim=1)
+        """``(N, D)`` raw states -> ``(N, O)`` labels, each object's ``(x_n, y_n[, cos theta, sin theta])``."""
+        xy = states[:, self.xy_dims] * self.normalizer.scales[STATE_KEY][self.xy_dims] + self.normalizer.offsets[STATE_KEY][self.xy_dims]
+        parts, turns = [], iter(self._angles)
+        for i, n in enumerate(self.sizes):
+            parts.append(xy[:, 2 * i : 2 * i + 2])
+            if n == 3:
+                theta = states[:, next(turns)]
+                parts += [torch.cos(theta)[:, None], torch.sin(theta)[:, None]]
+        return torch.cat(parts, dim=1)
 
     def to_pose(self, out: torch.Tensor) -> torch.Tensor:
-        """``(N, 4)`` outputs -> ``(N, 3)`` poses ``(x, y, theta)`` in raw units (theta in (-pi, pi])."""
-        xy = (out[:, :2] - self.normalizer.offsets[STATE_KEY][self._xy]) / self.normalizer.scales[STATE_KEY][self._xy]
-        return torch.cat([xy, torch.atan2(out[:, 3], out[:, 2])[:, None]], dim=1)
+        """``(N, O)`` outputs -> ``(N, P)`` poses, each object's ``(x, y[, theta])`` in raw units (theta in (-pi, pi])."""
+        parts, col = [], 0
+        for i, n in enumerate(self.sizes):
+            xy_dims = self.xy_dims[2 * i : 2 * i + 2]
+            parts.append((out[:, col : col + 2] - self.normalizer.offsets[STATE_KEY][xy_dims]) / self.normalizer.scales[STATE_KEY][xy_dims])
+            if n == 3:
+                parts.append(torch.atan2(out[:, col + 3], out[:, col + 2])[:, None])
+            col += 2 + 2 * (n == 3)
+        return torch.cat(parts, dim=1)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
-        """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, 3)`` predicted poses, differentiable."""
+        """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, P)`` predicted poses, differentiable."""
         return self.to_pose(self.raw(self.prepare(frames)))
 
 
-def pose_errors(pred: torch.Tensor, true: torch.Tensor, vertices: torch.Tensor, goal: torch.Tensor) -> dict[str, torch.Tensor]:
-    """``(N, 3)`` predicted and true poses -> per-frame errors ``(N,)``: position px, angle deg, vertex px
-    (mean vertex distance between the two poses), and the registration loss against ``goal`` (true,
-    predicted, absolute error px)."""
-    true_reg, pred_reg = registration_distance(true, goal, vertices), registration_distance(pred, goal, vertices)
-    turn = torch.remainder(pred[:, 2] - true[:, 2] + math.pi, 2 * math.pi) - math.pi
-    return {"position_px": (pred[:, :2] - true[:, :2]).norm(dim=1), "angle_deg": turn.abs() * (180.0 / math.pi),
-            "vertex_px": registration_distance(pred, true, vertices), "registration_true_px": true_reg,
-            "registration_pred_px": pred_reg, "registration_abs_err_px": (pred_reg - true_reg).abs()}
+def pose_errors(pred: torch.Tensor, true: torch.Tensor, vertices: torch.Tensor | Sequence[torch.Tensor],
+                goal: torch.Tensor | None, sizes: Sequence[int] | None = None) -> dict[str, torch.Tensor]:
+    """``(N, P)`` predicted and true poses -> per-frame errors ``(N,)``, each the mean over the objects (``sizes``:
+    their pose entries; default one object): position px, angle deg (objects with an angle; NaN where none has one),
+    vertex px (mean vertex distance between the two poses), and the registration loss against ``goal`` ``(P,)`` or
+    ``(N, P)`` (true, predicted, absolute error px; left out without a goal)."""
+    sizes = tuple(sizes or (pred.shape[1],))
+    shapes = [vertices] if isinstance(vertices, torch.Tensor) else list(vertices)
+    starts = [sum(sizes[:i]) for i in range(len(sizes))]
+    position = torch.stack([(pred[:, s : s + 2] - true[:, s : s + 2]).norm(dim=1) for s in starts]).mean(dim=0)
+    turns = [torch.remainder(pred[:, s + 2] - true[:, s + 2] + math.pi, 2 * math.pi) - math.pi for s, n in zip(starts, sizes) if n == 3]
+    angle = torch.stack(turns).abs().mean(dim=0) if turns else torch.full_like(position, float("nan"))
+    out = {"position_px": position, "angle_deg": angle * (180.0 / math.pi), "vertex_px": registration(pred, true, shapes, sizes)}
+    if goal is not None:
+        true_reg, pred_reg = registration(true, goal, shapes, sizes), registration(pred, goal, shapes, sizes)
+        out.update(registration_true_px=true_reg, registration_pred_px=pred_reg, registration_abs_err_px=(pred_reg - true_reg).abs())
+    return out
 
 
 class ImageReward(PoseReward):
     """``-registration`` of the pose a predictor reads from each predicted frame (see ``PoseReward``).
 
     Futures are frames ``(K, T, 3, S, S)`` in [0, 1] at any size ``S`` (resized to
-    ``input_size``); ``goal``: ``(3,)`` (default: the predictor's) or, per call, ``(3,)`` or
-    ``(K, 3)``. Scores are ``(K,)`` and differentiable w.r.t. the frames.
+    ``input_size``); ``goal``: ``(P,)`` (default: the predictor's; None where the task draws a goal per
+    episode) or, per call, ``(P,)`` or ``(K, P)``. Scores are ``(K,)`` and differentiable w.r.t. the frames.
     """
 
     def __init__(self, predictor: PosePredictor, goal: Any = None, config: RewardConfig = RewardConfig()) -> None:
         pc = predictor.config
         goal = pc.goal if goal is None else goal
-        if goal is None or not pc.vertices:
-            raise ValueError("the image reward needs the predictor's vertices and a goal (config.with_task)")
-        super().__init__(torch.tensor(pc.vertices), torch.as_tensor(goal, dtype=torch.float32), config)
+        if not pc.vertices:
+            raise ValueError("the image reward needs the predictor's vertices (config.with_task)")
+        super().__init__([torch.tensor(v) for v in pc.object_vertices],
+                         None if goal is None else torch.as_tensor(goal, dtype=torch.float32), config, pc.sizes)
         self.predictor = predictor
 
     @classmethod
@@ -264,7 +310,7 @@ class ImageReward(PoseReward):
         if frames.dim() != 5 or frames.shape[2] != 3:
             raise ValueError(f"frames: expected (K, T, 3, S, S), got {tuple(frames.shape)}")
         k, t = frames.shape[:2]
-        return self.predictor(frames.flatten(0, 1)).reshape(k, t, 3)
+        return self.predictor(frames.flatten(0, 1)).reshape(k, t, -1)
 
 
 class RewardPredictorModule(TrainableModule):
@@ -341,7 +387,7 @@ class RewardPredictorModule(TrainableModule):
             assert c.frame_extent is not None  # check_task
             x, shift = random_shift(x, c.shift_px)
             states = states.clone()
-            states[:, list(c.pose_dims[:2])] += shift * (c.frame_extent / c.input_size)
+            states[:, self.predictor.xy_dims] += (shift * (c.frame_extent / c.input_size)).repeat(1, len(c.sizes))  # every object moves
         if c.blur_prob > 0 and c.blur_sigma > 0:
             x = random_blur(x, c.blur_prob, c.blur_sigma)
         return x, states
@@ -361,8 +407,9 @@ class RewardPredictorModule(TrainableModule):
         frames, states = self._frames_states(batch)
         out = self.predictor.raw(self.predictor.prepare(frames))
         loss = F.mse_loss(out, self.predictor.targets(states))
-        verts = torch.tensor(self.config.vertices, device=out.device)
-        goal = torch.tensor(self.config.goal, device=out.device)
-        errors = pose_errors(self.predictor.to_pose(out), states[:, list(self.config.pose_dims)], verts, goal)
+        c = self.config
+        verts = [torch.tensor(v, device=out.device) for v in c.object_vertices]
+        goal = None if c.goal is None else torch.tensor(c.goal, device=out.device)
+        errors = pose_errors(self.predictor.to_pose(out), states[:, list(c.pose_dims)], verts, goal, c.sizes)
         names = ("registration_abs_err_px", "vertex_px", "position_px", "angle_deg")
-        return loss, {name: errors[name].mean() for name in names}
+        return loss, {name: errors[name].mean() for name in names if name in errors and not errors[name].isnan().all()}

@@ -21,6 +21,8 @@ from gpc.datasets.sequence import recorded_held_out
 from gpc.datasets.store import EpisodeStore
 from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule, pose_errors, resize
 
+GOAL_KEY = "goal"  # a store's per-step goal, where the task draws one per episode
+
 SPLITS = ("val", "all")
 BINS_PX = (0.0, 10.0, 30.0, 100.0, float("inf"))  # true registration loss bins of the report
 
@@ -82,8 +84,9 @@ def evaluate_reward_predictor(
     chosen = _episodes(datasets, split, module.data_record)[:episodes]
     if not chosen:
         raise DataError(f"{', '.join(map(str, datasets))}: no episodes to evaluate")
-    verts = torch.tensor(c.vertices, device=module.device)
-    goal_t = torch.tensor(c.goal if goal is None else tuple(goal), dtype=torch.float32, device=module.device)
+    verts = [torch.tensor(v, device=module.device) for v in c.object_vertices]
+    fixed = c.goal if goal is None else tuple(goal)  # None: each frame's goal as its store recorded it (a goal per episode)
+    goal_t = None if fixed is None else torch.tensor(fixed, dtype=torch.float32, device=module.device)
     parts: dict[str, list[np.ndarray]] = {}
     for store, i in chosen:
         sl = store.episode_slice(i)
@@ -92,15 +95,18 @@ def evaluate_reward_predictor(
         if frames.ndim != 4 or frames.shape[-1] != 3:
             raise DataError(f"{store.path}: data/{IMAGE_KEY} rows are {frames.shape[1:]}, expected RGB frames (H, W, 3)")
         frames = np.clip(np.rint(frames), 0, 255).astype(np.uint8)
+        goals = None if goal_t is not None else store.read(GOAL_KEY, sl.start, sl.stop)[::stride]
         for lo in range(0, len(frames), batch_size):
             x = torch.from_numpy(frames[lo : lo + batch_size]).to(module.device).permute(0, 3, 1, 2).float() / 255.0
             x = x if frame_size is None else resize(x, frame_size)
             true = torch.from_numpy(np.asarray(states[lo : lo + batch_size], np.float32)).to(module.device)[:, list(c.pose_dims)]
-            for name, value in pose_errors(module.predictor(x), true, verts, goal_t).items():
+            against = goal_t if goals is None else torch.from_numpy(np.asarray(goals[lo : lo + batch_size], np.float32)).to(module.device)
+            for name, value in pose_errors(module.predictor(x), true, verts, against, c.sizes).items():
                 parts.setdefault(name, []).append(value.double().cpu().numpy())
     errors = {k: np.concatenate(v) for k, v in parts.items()}
     return {"split": split, "datasets": [str(p) for p in datasets], "episodes": len(chosen), "stride": stride,
-            "goal": goal_t.tolist(), "frame_size": frame_size or int(frames.shape[1]), "input_size": c.input_size,
+            "goal": "per episode" if goal_t is None else goal_t.tolist(),
+            "frame_size": frame_size or int(frames.shape[1]), "input_size": c.input_size,
             "config": c.to_dict(), **_summary(errors)}
 
 
