@@ -61,6 +61,8 @@ class Task:
     render_state: Callable[..., np.ndarray]  # (state, goal=None, size=96) -> RGB frame as the camera would show it
     episode_scores: Callable[[np.ndarray, np.ndarray], np.ndarray]  # (states, episode ends) -> each episode's score
     max_episode_steps: int = 300
+    # The reward planners score predicted states with, by name (``gpc.models.rewards.state``): tasks never import models.
+    state_reward: str = "registration"
     info_metrics: tuple[str, ...] = ()  # step-info values whose episode maximum a result records (``<name>_max``)
     draw_plan: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, chunk, executed) -> frame
     draw_futures: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, futures, scores, chosen)

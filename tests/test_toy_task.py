@@ -123,3 +123,22 @@ def test_the_toy_ceiling_ranks_by_the_true_outcome(trained):
     assert plan.scores.shape == (1, 8) and (plan.scores <= 0).all()  # -distance to the goal at the chunk's end
     end = REACH.simulator().rollout(torch.as_tensor(obs["sim"][None]), torch.as_tensor(plan.chunk))[0, -1]
     assert abs(-float((end - torch.tensor(GOAL)).norm()) - float(plan.scores[0].max())) < 1e-4
+
+
+def test_a_task_names_its_own_state_reward_and_planners_score_with_it():
+    """A task's reward on predicted states is its choice: one registered by name replaces registration."""
+    from gpc.harness.recipes import RewardSpec, build_reward
+    from gpc.models.rewards.registration import RegistrationReward
+    from gpc.models.rewards.state import register_state_reward
+
+    class FarRight(torch.nn.Module):  # rewards the point for going right, whatever the goal
+        def forward(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+            return futures[:, -1, 0]
+
+    register_state_reward("far-right", lambda layout, config: FarRight())
+    assert isinstance(build_reward(RewardSpec(), REACH), RegistrationReward)
+    custom = dataclasses.replace(REACH, state_reward="far-right")
+    futures = torch.tensor([[[10.0, 5.0]], [[30.0, 5.0]]])
+    assert build_reward(RewardSpec(), custom)(futures).tolist() == [10.0, 30.0]
+    with pytest.raises(ValueError, match="unknown state reward 'nowhere'"):
+        build_reward(RewardSpec(), dataclasses.replace(REACH, state_reward="nowhere"))

@@ -38,7 +38,7 @@ DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the
 class RewardSpec:
     """Which reward scores the predicted futures."""
 
-    kind: str = "registration"  # registration (state futures) | learned (image futures) | vlm (selects)
+    kind: str = "registration"  # registration: the task's state reward (state futures) | learned (image futures) | vlm (selects)
     aggregate: str = "final"  # final | discounted
     checkpoint: str | None = None  # learned: the reward checkpoint
     vlm: Any = None  # vlm: a gpc.models.rewards.vlm.VLMConfig
@@ -64,11 +64,13 @@ def load_world_model(path: str, task: Task) -> Any:
 
 
 def build_reward(spec: RewardSpec, task: Task) -> Any:
-    """The task's registration reward (its object outline and default goal), or a learned / VLM one."""
-    from gpc.models.rewards.registration import RegistrationReward, RewardConfig
+    """The task's own reward on predicted states (``Task.state_reward``: Push-T's registration of its objects), or a
+    learned / VLM one (the state reward is the VLM's fallback)."""
+    from gpc.models.rewards.registration import RewardConfig
+    from gpc.models.rewards.state import state_reward
 
     config = RewardConfig(aggregate=spec.aggregate)
-    registration = RegistrationReward.from_layout(task.layout, config)
+    registration = state_reward(task.state_reward, task.layout, config)
     if spec.kind == "registration":
         return registration
     if spec.kind == "learned":

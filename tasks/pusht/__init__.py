@@ -127,6 +127,7 @@ TASK = Task(
     render_state=render_state,
     episode_scores=episode_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
+    state_reward="registration",  # the T's mean vertex distance to the goal pose (the paper's registration loss)
     info_metrics=("coverage",),
     draw_plan=render.draw_plan,
     draw_futures=render.draw_futures,
