@@ -64,7 +64,7 @@ def test_a_damaged_chunk_or_metadata_file_is_named(tiny_pusht, tmp_path):
     chunk.write_bytes(chunk.read_bytes()[: len(chunk.read_bytes()) // 2])  # truncated
     args = ["train", "policy", "--dataset", str(copy), "--out", str(tmp_path / "run"), "--profile", "tiny", "--max-steps", "2",
             "--accelerator", "cpu", "--no-progress"]
-    one_line(inline(*args), 2, str(copy), "data/state chunk 0", "cannot be decoded")
+    one_line(inline(*args), 2, str(copy), "data/state chunk 0", "is damaged")
     assert not (tmp_path / "run").exists()
     (copy / "data" / "action" / ".zarray").write_text('{"chunks": [')
     one_line(gpc("data", "info", str(copy)), 2, str(copy / "data" / "action" / ".zarray"), "unreadable Zarr store")
