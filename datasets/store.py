@@ -201,15 +201,20 @@ class EpisodeStore:
             for rest in itertools.product(*across):
                 key = arr.metadata.encode_chunk_key((i, *rest))
                 if key not in stored:
-                    old = ("; gpc stores of format 1 left chunks of zeros unwritten: if this one is such, collect it again"
-                           if self.root.attrs.get("gpc_format") == 1 else "")
-                    raise DataError(f"{where} is missing (no file {name}/{key}){old}")
+                    raise DataError(f"{where} is missing (no file {name}/{key}){self._skipped_zeros_note()}")
                 if blosc:  # blosc trusts its header: a truncated chunk of incompressible bytes would decode from past its end
                     with open(folder / key, "rb") as f:
                         head, size = f.read(16), os.fstat(f.fileno()).st_size
                     if len(head) < 16 or struct.unpack_from("<I", head, 12)[0] != size:
                         said = f", its header says {struct.unpack_from('<I', head, 12)[0]}" if len(head) == 16 else ""
                         raise DataError(f"{where} is damaged (file {name}/{key} has {size} bytes{said})")
+
+    def _skipped_zeros_note(self) -> str:
+        """What else an absent chunk may be in a store not written by gpc's format 2 (whose writer writes every one)."""
+        if isinstance(self.root.attrs.get("gpc_format"), int) and self.root.attrs["gpc_format"] >= 2:
+            return ""
+        return ("; a writer that skips chunks of zeros (zarr 3's default, gpc before format 2) may have left it out: "
+                "if so, write the store again with every chunk")
 
     def _repair(self) -> None:
         """Drop what a killed writer left past the last committed episode."""
