@@ -211,7 +211,8 @@ class EpisodeStore:
 
     def _skipped_zeros_note(self) -> str:
         """What else an absent chunk may be in a store not written by gpc's format 2 (whose writer writes every one)."""
-        if isinstance(self.root.attrs.get("gpc_format"), int) and self.root.attrs["gpc_format"] >= 2:
+        fmt = self.root.attrs.get("gpc_format")
+        if isinstance(fmt, int) and fmt >= 2:
             return ""
         return ("; a writer that skips chunks of zeros (zarr 3's default, gpc before format 2) may have left it out: "
                 "if so, write the store again with every chunk")

@@ -130,3 +130,21 @@ def test_a_two_dimensional_episode_ends_is_named_with_its_shape(tmp_path):
     shutil.rmtree(store / "meta" / "episode_ends")
     zarr.open_group(str(store), mode="r+").create_array("meta/episode_ends", data=np.array([[10], [20]], np.int64))
     _refused(_readers(store, tmp_path)["info"], store, tmp_path, "meta/episode_ends has shape (2, 1)")
+
+
+def test_importing_a_dataset_that_holds_nan_names_the_dataset_and_episode(collected, tmp_path):
+    """The import's own check (a LeRobot dataset is no store): refused naming the dataset, not its removed staging copy."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    dataset, out = tmp_path / "lerobot", tmp_path / "back.zarr"
+    assert inline("data", "export", str(collected), "--out", str(dataset), "--no-images")[0] == 0
+    table_file = next((dataset / "data").rglob("*.parquet"))
+    table = pq.read_table(table_file)
+    state = np.asarray(table.column("gpc.state").to_pylist(), np.float32)
+    state[45, 2] = np.nan  # episode 1 (its steps are 40-79)
+    column = pa.array(list(state), type=table.schema.field("gpc.state").type)
+    pq.write_table(table.set_column(table.column_names.index("gpc.state"), "gpc.state", column), table_file)
+    before = digest(dataset)
+    one_line(inline("data", "import", str(dataset), "--out", str(out)), 2, f"{dataset}: episode 1", "NaN or inf into data/state")
+    assert digest(dataset) == before and not out.exists() and not (tmp_path / ".back.zarr.partial").exists()
