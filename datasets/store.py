@@ -97,6 +97,15 @@ def _compressor() -> numcodecs.Blosc:
     return numcodecs.Blosc(cname="zstd", clevel=5, shuffle=numcodecs.Blosc.BITSHUFFLE)
 
 
+def store_record(path: Path) -> dict[str, Any]:
+    """The attributes of the store at ``path``, its arrays unread ({} where there is no readable Zarr group): whose
+    store it is stays known when its data is damaged (``--overwrite`` replaces a damaged store gpc wrote)."""
+    try:
+        return dict(zarr.open_group(str(path), mode="r").attrs) if path.is_dir() else {}
+    except Exception:  # zarr raises several types for unreadable metadata
+        return {}
+
+
 class EpisodeStore:
     """Episodes of time-aligned arrays, appended whole and read by index."""
 

@@ -72,6 +72,14 @@ def test_a_deleted_chunk_of_any_array_is_named(collected, tmp_path, chunk):
     _refused(_readers(store, tmp_path)["info"], store, tmp_path, f"{array} chunk 0", f"no file {chunk}")
 
 
+def test_overwrite_still_replaces_a_damaged_store_gpc_wrote(collected, tmp_path):
+    """Whose store it is does not hang on its data: the way out of a lost chunk is to collect the store again."""
+    store = _copy(collected, tmp_path)
+    (store / "data" / "state" / "0.0").unlink()
+    assert inline("collect", "--out", str(store), "--episodes", "3", *COLLECT, "--overwrite")[0] == 0
+    np.testing.assert_array_equal(EpisodeStore.open(store).read("state"), EpisodeStore.open(collected).read("state"))
+
+
 def test_a_store_of_format_1_missing_a_chunk_says_it_may_be_one_of_zeros(collected, tmp_path):
     """gpc before format 2 let zarr skip chunks of zeros (as zarr 3 does by default for any writer): such a store is
     refused all the same, saying what the absent chunk may be."""
