@@ -10,12 +10,22 @@ commit record: arrays longer than its last entry hold a half-written episode, wh
 ignore and the next writer truncates, so a store killed at any moment holds whole episodes.
 zarr grows an array before writing the new chunk, so a trailing 0 in ``episode_ends`` is an
 append that never landed, and is dropped the same way.
+
+Missing data is never a value: zarr reads an absent chunk as its fill value (zeros), so every chunk
+holding committed rows must be on disk (checked at open, one directory listing per array), and
+gpc's writer writes every chunk, zeros included (zarr 3 skips all-fill chunks by default), so an
+absent one is a lost one. Every read refuses an undecodable chunk, values that are not numbers and
+NaN or inf, naming the array and the chunk or step.
 """
 
 from __future__ import annotations
 
+import asyncio
+import itertools
 import json
+import math
 import os
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, cast
@@ -23,10 +33,11 @@ from typing import Any, cast
 import numcodecs
 import numpy as np
 import zarr
+from zarr.core.sync import sync
 
 from gpc.datasets.errors import DataError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: every chunk is written (format 1 left chunks of zeros out)
 _CHUNK_BYTES = 4 << 20
 
 
@@ -56,8 +67,43 @@ def _bad_metadata(path: Path) -> Path | None:
     return None
 
 
+def _writes_every_chunk(arr: zarr.Array) -> zarr.Array:
+    """``arr`` writing chunks of zeros too (zarr 3 skips them by default), so an absent chunk means a lost one."""
+    return arr.with_config({"write_empty_chunks": True})
+
+
+def _unit(name: str) -> str:
+    return "steps" if name.startswith("data/") else "entries"
+
+
+def _first_bad_row(block: np.ndarray) -> int | None:
+    """The first row of ``block`` holding NaN or inf (checked in slices: no copy of a large array)."""
+    rows = max(1, _CHUNK_BYTES // max(1, block[:1].nbytes))
+    for start in range(0, len(block), rows):
+        part = block[start : start + rows]
+        ok = np.isfinite(part.reshape(len(part), -1)).all(axis=1)
+        if not ok.all():
+            return start + int(np.argmin(ok))
+    return None
+
+
+async def _others_ended() -> None:
+    """Every other task on zarr's event loop has ended. A failed read leaves its sibling chunk reads running; torn
+    down at exit, each would print an 'Exception ignored ... Event loop is closed' traceback after gpc's one line."""
+    await asyncio.gather(*(asyncio.all_tasks() - {asyncio.current_task()}), return_exceptions=True)
+
+
 def _compressor() -> numcodecs.Blosc:
     return numcodecs.Blosc(cname="zstd", clevel=5, shuffle=numcodecs.Blosc.BITSHUFFLE)
+
+
+def store_record(path: Path) -> dict[str, Any]:
+    """The attributes of the store at ``path``, its arrays unread ({} where there is no readable Zarr group): whose
+    store it is stays known when its data is damaged (``--overwrite`` replaces a damaged store gpc wrote)."""
+    try:
+        return dict(zarr.open_group(str(path), mode="r").attrs) if path.is_dir() else {}
+    except Exception:  # zarr raises several types for unreadable metadata
+        return {}
 
 
 class EpisodeStore:
@@ -90,6 +136,7 @@ class EpisodeStore:
             raise DataError(f"{_bad_metadata(path) or path}: unreadable Zarr store ({_first_line(exc)})") from None
         store = cls(path, group, writable)
         if writable:
+            store.verify()  # a writer never appends to damaged data, and refusing changes no byte
             store._repair()
         return store
 
@@ -119,8 +166,12 @@ class EpisodeStore:
                 if not isinstance(_group(self.root[part])[name], zarr.Array):
                     raise DataError(f"{self.path / part / name / '.zarray'}: not a readable Zarr array (damaged metadata)")
         raw = _array(self.root["meta/episode_ends"])
+        if raw.ndim != 1:
+            raise DataError(f"{self.path}: meta/episode_ends has shape {raw.shape}; it must be 1-D (one end per episode)")
         if not np.issubdtype(raw.dtype, np.integer):
             raise DataError(f"{self.path}: meta/episode_ends holds {raw.dtype} values, not integers")
+        # The last entry's chunk may be absent only when it holds that entry alone: an append that never landed.
+        self._check_chunks(raw, "meta/episode_ends", max(0, raw.shape[0] - 1))
         ends = np.asarray(self._decoded(raw, "meta/episode_ends", 0, raw.shape[0]), dtype=np.int64)
         if ends.size and ends[-1] == 0 and (ends.size == 1 or ends[-2] > 0):
             # Grown but not yet filled: a writer died between zarr's resize and its chunk write.
@@ -130,10 +181,50 @@ class EpisodeStore:
         self._ends = ends
         n = self.n_steps
         for key, arr in _group(self.root["data"]).arrays():
-            if arr.shape[0] < n:
+            if arr.ndim == 0 or arr.shape[0] < n:
                 raise DataError(
-                    f"{self.path}: data/{key} has {arr.shape[0]} steps but meta/episode_ends needs {n}"
+                    f"{self.path}: data/{key} has {arr.shape[0] if arr.ndim else 0} steps but meta/episode_ends needs {n}"
                 )
+            self._check_chunks(arr, f"data/{key}", n)
+        meta = _group(self.root["meta"])
+        for name in ("episode_seeds", "episode_scores"):
+            if name in meta:
+                arr = _array(meta[name])
+                if arr.ndim != 1:
+                    raise DataError(f"{self.path}: meta/{name} has shape {arr.shape}; it must be 1-D (one entry per episode)")
+                self._check_chunks(arr, f"meta/{name}", min(arr.shape[0], self.n_episodes))
+
+    def _check_chunks(self, arr: zarr.Array, name: str, stop: int) -> None:
+        """Every chunk file holding rows ``[0, stop)`` of ``arr`` is on disk (one listing of its folder): zarr would
+        read an absent one as its fill value."""
+        if stop <= 0 or 0 in arr.shape:
+            return
+        folder = self.path / arr.path
+        stored = {str(Path(root, f).relative_to(folder).as_posix()) for root, _, files in os.walk(folder) for f in files}
+        chunk = tuple(arr.shards or arr.chunks)
+        rows = int(chunk[0])
+        across = [range(math.ceil(s / c)) for s, c in zip(arr.shape[1:], chunk[1:])]
+        blosc = getattr(getattr(arr.metadata, "compressor", None), "codec_id", None) == "blosc"  # format 2's one codec
+        for i in range(math.ceil(stop / rows)):
+            where = f"{self.path}: {name} chunk {i} ({_unit(name)} {i * rows}-{min((i + 1) * rows, arr.shape[0]) - 1})"
+            for rest in itertools.product(*across):
+                key = arr.metadata.encode_chunk_key((i, *rest))
+                if key not in stored:
+                    raise DataError(f"{where} is missing (no file {name}/{key}){self._skipped_zeros_note()}")
+                if blosc:  # blosc trusts its header: a truncated chunk of incompressible bytes would decode from past its end
+                    with open(folder / key, "rb") as f:
+                        head, size = f.read(16), os.fstat(f.fileno()).st_size
+                    if len(head) < 16 or struct.unpack_from("<I", head, 12)[0] != size:
+                        said = f", its header says {struct.unpack_from('<I', head, 12)[0]}" if len(head) == 16 else ""
+                        raise DataError(f"{where} is damaged (file {name}/{key} has {size} bytes{said})")
+
+    def _skipped_zeros_note(self) -> str:
+        """What else an absent chunk may be in a store not written by gpc's format 2 (whose writer writes every one)."""
+        fmt = self.root.attrs.get("gpc_format")
+        if isinstance(fmt, int) and fmt >= 2:
+            return ""
+        return ("; a writer that skips chunks of zeros (zarr 3's default, gpc before format 2) may have left it out: "
+                "if so, write the store again with every chunk")
 
     def _repair(self) -> None:
         """Drop what a killed writer left past the last committed episode."""
@@ -180,21 +271,29 @@ class EpisodeStore:
         return _array(_group(self.root["data"])[key])
 
     def read(self, key: str, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Steps ``[start, stop)`` of ``key``, never past the last whole episode."""
+        """Steps ``[start, stop)`` of ``key``, never past the last whole episode: numbers, every one finite."""
         stop = self.n_steps if stop is None else min(stop, self.n_steps)
-        return self._decoded(self.array(key), f"data/{key}", start, stop)
+        arr = self.array(key)
+        if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+            raise DataError(f"{self.path}: data/{key} holds {arr.dtype} values, not numbers")
+        block = self._decoded(arr, f"data/{key}", start, stop)
+        bad = _first_bad_row(block) if np.issubdtype(block.dtype, np.inexact) else None
+        if bad is not None:
+            raise DataError(f"{self.path}: data/{key} holds NaN or inf (first at step {start + bad})")
+        return block
 
     def _decoded(self, arr: zarr.Array, name: str, start: int, stop: int) -> np.ndarray:
         """``arr[start:stop]``; a chunk that cannot be decoded (truncated, corrupt) is named in one line."""
         try:
             return np.asarray(arr[start:stop])
         except Exception as exc:  # numcodecs and zarr raise many types for a damaged chunk
+            sync(_others_ended())
             step = int(arr.chunks[0]) if arr.chunks else 1
             for first in range(start - start % step, stop, step):  # find the chunk that fails
                 try:
                     arr[first : min(first + step, arr.shape[0])]
                 except Exception:
-                    raise DataError(f"{self.path}: {name} chunk {first // step} (steps {first}-"
+                    raise DataError(f"{self.path}: {name} chunk {first // step} ({_unit(name)} {first}-"
                                     f"{min(first + step, arr.shape[0]) - 1}) cannot be decoded ({_first_line(exc)})") from None
             raise DataError(f"{self.path}: {name} cannot be read ({_first_line(exc)})") from None
 
@@ -212,26 +311,21 @@ class EpisodeStore:
         """Seeds of our collected episodes; ``None`` for stores recorded elsewhere."""
         if "episode_seeds" not in _group(self.root["meta"]):
             return None
-        return np.asarray(_array(self.root["meta/episode_seeds"])[: self.n_episodes])
+        return self._decoded(_array(self.root["meta/episode_seeds"]), "meta/episode_seeds", 0, self.n_episodes)
 
     def episode_scores(self) -> np.ndarray | None:
         if "episode_scores" not in _group(self.root["meta"]):
             return None
-        return np.asarray(_array(self.root["meta/episode_scores"])[: self.n_episodes])
+        return self._decoded(_array(self.root["meta/episode_scores"]), "meta/episode_scores", 0, self.n_episodes)
 
-    def check_finite(self, keys: list[str] | None = None) -> None:
-        """Raise naming the first key holding NaN or inf (read chunk by chunk)."""
+    def verify(self, keys: list[str] | None = None) -> None:
+        """Read every committed step of ``keys`` (all by default) a few chunks at a time, so what :meth:`read`
+        refuses (an undecodable chunk, values that are not numbers, NaN or inf) is found before any work."""
         for key in keys or self.keys:
             arr = self.array(key)
-            if not np.issubdtype(arr.dtype, np.floating):
-                continue
-            step = max(1, _CHUNK_BYTES // max(1, arr.dtype.itemsize * int(np.prod(arr.shape[1:]))))
-            for start in range(0, self.n_steps, step):
-                block = self.read(key, start, start + step)
-                flat = np.isfinite(block.reshape(len(block), -1)).all(axis=1)
-                if not flat.all():
-                    bad = start + int(np.flatnonzero(~flat)[0])
-                    raise DataError(f"{self.path}: data/{key} holds NaN or inf (first at step {bad})")
+            rows = int(arr.chunks[0]) * max(1, _CHUNK_BYTES // max(1, arr.dtype.itemsize * math.prod(arr.chunks)))
+            for start in range(0, self.n_steps, rows):
+                self.read(key, start, start + rows)
 
     # ------------------------------------------------------------------ writing
     def append_episode(self, data: dict[str, np.ndarray], seed: int = -1, score: float = np.nan) -> None:
@@ -260,12 +354,12 @@ class EpisodeStore:
                 chunk = max(1, min(4096, _CHUNK_BYTES // max(1, row)))
                 group.create_array(key, shape=(0,) + value.shape[1:], chunks=(chunk,) + value.shape[1:],
                                    dtype=value.dtype, compressors=_compressor())
-            arr = _array(group[key])
+            arr = _writes_every_chunk(_array(group[key]))
             arr.append(value.astype(arr.dtype, copy=False), axis=0)
-        _array(meta["episode_seeds"]).append(np.array([seed], dtype=np.int64))
-        _array(meta["episode_scores"]).append(np.array([score], dtype=np.float64))
+        _writes_every_chunk(_array(meta["episode_seeds"])).append(np.array([seed], dtype=np.int64))
+        _writes_every_chunk(_array(meta["episode_scores"])).append(np.array([score], dtype=np.float64))
         new_end = self.n_steps + length
-        _array(meta["episode_ends"]).append(np.array([new_end], dtype=np.int64))
+        _writes_every_chunk(_array(meta["episode_ends"])).append(np.array([new_end], dtype=np.int64))
         self._ends = np.append(self._ends, new_end)
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import zarr
 from typer.testing import CliRunner
 
 from gpc.cli.main import app
@@ -143,4 +144,15 @@ def wide_store(path: Path) -> Path:
         store.append_episode({"state": rng.uniform(0, 512, (30, 3)).astype(np.float32),
                               "keypoint": rng.uniform(0, 512, (30, 9, 2)).astype(np.float32),
                               "action": rng.uniform(0, 512, (30, 2)).astype(np.float32)})
+    return path
+
+
+def string_store(path: Path) -> Path:
+    """A Diffusion-Policy-layout store whose ``state`` holds strings: no reader may take it for numbers."""
+    root = zarr.open_group(str(path), mode="w", zarr_format=2)
+    data = root.create_group("data")
+    data.create_array("state", data=np.array([["a"] * 5] * 20))
+    data.create_array("keypoint", data=np.ones((20, 9, 2), np.float32))
+    data.create_array("action", data=np.ones((20, 2), np.float32))
+    root.create_group("meta").create_array("episode_ends", data=np.array([20], np.int64))
     return path

@@ -8,10 +8,8 @@ import time
 import uuid
 from pathlib import Path
 
-import numpy as np
 import pytest
-import zarr
-from faults import FAST, eval_args, gpc, inline, one_line, wide_store
+from faults import FAST, eval_args, gpc, inline, one_line, string_store, wide_store
 
 from gpc.datasets.store import EpisodeStore
 from gpc.models.policy.config import policy_profile
@@ -24,18 +22,6 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 # ---------------------------------------------------------------------- validated at the door
-def _string_store(path: Path) -> Path:
-    root = zarr.open_group(str(path), mode="w", zarr_format=2)
-    data = root.create_group("data")
-    data.create_array("state", data=np.array([["a"] * 5] * 20))
-    data.create_array("keypoint", data=np.zeros((20, 9, 2), np.float32))
-    data.create_array("action", data=np.zeros((20, 2), np.float32))
-    root.create_group("meta").create_array("episode_ends", data=np.array([20], np.int64))
-    return path
-
-
-
-
 @pytest.mark.parametrize("case", ["gpu", "devices 0", "devices abc", "strings", "wide state", "no episodes long enough"])
 def test_a_training_refused_at_the_door_leaves_nothing_behind(tiny_pusht, tmp_path, case):
     store, extra, expect = str(tiny_pusht["store"]), [], ""
@@ -44,7 +30,7 @@ def test_a_training_refused_at_the_door_leaves_nothing_behind(tiny_pusht, tmp_pa
     elif case.startswith("devices"):
         extra, expect = ["--devices", case.split()[1]], f"--devices '{case.split()[1]}'"
     elif case == "strings":
-        store, expect = str(_string_store(tmp_path / "s.zarr")), "data/state holds <U1 values, not numbers"
+        store, expect = str(string_store(tmp_path / "s.zarr")), "data/state holds <U1 values, not numbers"
     elif case == "wide state":
         store, expect = str(wide_store(tmp_path / "w.zarr")), "data/state rows are (3,); task pusht stores (5,)"
     else:
@@ -64,7 +50,7 @@ def test_a_damaged_chunk_or_metadata_file_is_named(tiny_pusht, tmp_path):
     chunk.write_bytes(chunk.read_bytes()[: len(chunk.read_bytes()) // 2])  # truncated
     args = ["train", "policy", "--dataset", str(copy), "--out", str(tmp_path / "run"), "--profile", "tiny", "--max-steps", "2",
             "--accelerator", "cpu", "--no-progress"]
-    one_line(inline(*args), 2, str(copy), "data/state chunk 0", "cannot be decoded")
+    one_line(inline(*args), 2, str(copy), "data/state chunk 0", "is damaged")
     assert not (tmp_path / "run").exists()
     (copy / "data" / "action" / ".zarray").write_text('{"chunks": [')
     one_line(gpc("data", "info", str(copy)), 2, str(copy / "data" / "action" / ".zarray"), "unreadable Zarr store")

@@ -35,7 +35,7 @@ def test_roundtrip_in_diffusion_policy_layout(tmp_path):
     assert again.keys == ["action", "img", "state"]
     ep = again.episode(1)
     assert ep["state"].shape == (5, 5) and np.all(ep["state"] == 1) and np.all(ep["action"] == -1)
-    assert again.attrs["task"] == "pusht" and again.attrs["gpc_format"] == 1
+    assert again.attrs["task"] == "pusht" and again.attrs["gpc_format"] == 2
 
 
 def test_reads_diffusion_policy_store_as_is(human_data):

@@ -26,7 +26,7 @@ import numpy as np
 from gpc import __version__
 from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
-from gpc.datasets.store import EpisodeStore
+from gpc.datasets.store import EpisodeStore, store_record
 from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, map_groups
 from gpc.harness.files import check_out, write_atomic
@@ -173,11 +173,8 @@ def _chunk_name(parts: tuple[str, ...]) -> bool:
 
 
 def _wrote(path: Path) -> bool:
-    """Whether ``path`` is a store gpc wrote (read-only)."""
-    try:
-        return path.is_dir() and "gpc_format" in EpisodeStore.open(path).attrs
-    except DataError:
-        return False
+    """Whether ``path`` is a store gpc wrote (read-only; its data may be damaged)."""
+    return "gpc_format" in store_record(path)
 
 
 def _real(out: Path) -> Path:

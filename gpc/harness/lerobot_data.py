@@ -128,9 +128,9 @@ def import_dataset(src: Path, out: Path, task: str | None = None) -> dict[str, A
         for i, features in enumerate(reader.episodes()):
             try:
                 episode = _restore(features, record["keys"]) if record else chosen.from_lerobot(features)
-            except DataError as exc:
-                raise DataError(f"{src}: episode {i}: {exc}") from None
-            store.append_episode(episode, seed=int(seeds[i]), score=float(scores[i]))
+                store.append_episode(episode, seed=int(seeds[i]), score=float(scores[i]))  # refuses NaN, changing nothing
+            except DataError as exc:  # named by the dataset read, not the staging store that is removed
+                raise DataError(f"{src}: episode {i}: {str(exc).removeprefix(f'{staging}: ')}") from None
             interrupts.check()
     return {"episodes": reader.n_episodes, "frames": int(sum(reader.lengths())), "out": str(out),
             "exact": record is not None, "task": chosen.name}

@@ -24,7 +24,7 @@ def task_of(store: EpisodeStore) -> str:
 def describe_store(path: Path) -> dict[str, Any]:
     """Episodes, steps, keys and shapes, episode lengths, contact fraction, scores and pose coverage."""
     store = EpisodeStore.open(path)
-    store.check_finite([k for k in store.keys if k != "img"])
+    store.verify([k for k in store.keys if k != "img"])
     lengths = np.diff(np.concatenate([[0], store.episode_ends]))
     info: dict = {
         "path": str(path), "episodes": store.n_episodes, "steps": store.n_steps,

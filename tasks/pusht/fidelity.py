@@ -113,7 +113,7 @@ def check_store(path: str | Path, episodes: int = 0, frame_stride: int = 10) -> 
     n_eps = store.n_episodes if episodes == 0 else min(episodes, store.n_episodes)
     stop = int(store.episode_ends[n_eps - 1])
     states, actions = store.read("state", 0, stop), store.read("action", 0, stop)
-    store.check_finite(["state", "action"])
+    store.verify(["state", "action"])
     rep = replay(states, actions, store.episode_ends[:n_eps])
     gaps = restore_divergence(states, actions, store.episode_ends[:n_eps])
     out = {"data": str(path), "replay": rep.summary(),
