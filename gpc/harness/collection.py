@@ -147,7 +147,7 @@ def _foreign(store: Path) -> list[Path]:
     """The files in a store gpc wrote that are not the Zarr layout gpc writes there (its metadata, the arrays
     its provenance records under ``data/`` and ``meta/``, their chunks): a user's, which ``--overwrite`` would
     delete with the store. Folders are judged by the files in them."""
-    keys = EpisodeStore.open(store).attrs.get("keys")
+    keys = store_record(store).get("keys")  # its data may be damaged: --overwrite replaces a damaged store of gpc's
     arrays = {"data": set(keys) if isinstance(keys, list) else None, "meta": _META_ARRAYS}
     foreign = []
     for path in sorted(store.rglob("*")):
