@@ -211,7 +211,7 @@ class SwapExpert:
             return self._carrot
         obj, target, tol = move
         pos = cube_pose[:2] if obj == CUBE else sphere
-        fine = tol < self.config.park_tolerance and np.linalg.norm(target - pos) < self.config.fine_distance
+        fine = bool(tol < self.config.park_tolerance and np.linalg.norm(target - pos) < self.config.fine_distance)
         push = self._push
         if push is not None and (push.obj != obj or push.fine != fine):
             push = None
