@@ -19,7 +19,7 @@ import numpy as np
 from gpc.tasks.planar.paths import follow, rotate
 from gpc.tasks.planar.scene import WORKSPACE
 from gpc.tasks.swap import geometry
-from gpc.tasks.swap.paths import HALF_DIAGONAL, R, clearance, in_workspace, shortest_path
+from gpc.tasks.swap.paths import R, away, clearance, in_workspace, shortest_path
 from gpc.tasks.swap.sim import SwapSim
 
 CUBE, SPHERE = 0, 1
@@ -234,9 +234,11 @@ class SwapExpert:
             return self._back_off(cube_pose, sphere)
         return out
 
-    def _face(self, push_dir: np.ndarray, angle: float) -> int:
-        """The cube face whose inward normal is closest to ``push_dir`` (world)."""
-        return int(np.argmax(-rotate(_FACES, angle) @ push_dir))
+    @staticmethod
+    def _face(cube_pose: np.ndarray, target: np.ndarray) -> int:
+        """The cube face whose inward normal points closest to ``target``."""
+        e = target - cube_pose[:2]
+        return int(np.argmax(-rotate(_FACES, cube_pose[2]) @ (e / max(float(np.linalg.norm(e)), 1e-9))))
 
     def _axis_face(self, cube_pose: np.ndarray, target: np.ndarray) -> int:
         """For fine pushes: the face to push so the larger of the cube-frame offsets shrinks."""
@@ -246,8 +248,7 @@ class SwapExpert:
         normal[k] = -np.sign(e[k]) if e[k] != 0 else 1.0
         return int(np.argmax(_FACES @ normal))
 
-    def _ideal(self, push: _Push, cube_pose: np.ndarray, sphere: np.ndarray, target: np.ndarray,
-               tol: float) -> tuple[np.ndarray, np.ndarray, float]:
+    def _ideal(self, push: _Push, cube_pose: np.ndarray, sphere: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Where the disc's centre touches the object for this push, the push direction and how far it has to go."""
         if push.obj == SPHERE:
             e = target - sphere
@@ -270,13 +271,9 @@ class SwapExpert:
         """A push of ``obj`` towards ``target`` and the path to its staging point (None: no path from here)."""
         cfg = self.config
         assert self._carrot is not None
-        if obj == CUBE:
-            e = target - cube_pose[:2]
-            face = self._axis_face(cube_pose, target) if fine else self._face(e / max(np.linalg.norm(e), 1e-9), cube_pose[2])
-        else:
-            face = 0
+        face = 0 if obj == SPHERE else self._axis_face(cube_pose, target) if fine else self._face(cube_pose, target)
         push = _Push(obj, face, fine, self._draw(cfg.fine_speed if fine else cfg.push_speed), np.zeros((1, 2)), target)
-        ideal, p, _ = self._ideal(push, cube_pose, sphere, target, 0.0)
+        ideal, p, _ = self._ideal(push, cube_pose, sphere, target)
         staging = ideal - p * self._draw(cfg.staging_gap)
         if not in_workspace(staging) or clearance(staging, cube_pose, sphere) < R + cfg.margin / 2:
             return None
@@ -302,7 +299,7 @@ class SwapExpert:
     def _push_target(self, push: _Push, agent: np.ndarray, cube_pose: np.ndarray, sphere: np.ndarray, target: np.ndarray,
                      tol: float) -> np.ndarray | None:
         """This step's target of a closed-loop push; None when the disc is no longer behind the object."""
-        ideal, p, remaining = self._ideal(push, cube_pose, sphere, target, tol)
+        ideal, p, remaining = self._ideal(push, cube_pose, sphere, target)
         rel = agent - ideal
         behind = -(rel @ p)  # how far the disc is behind its touching point
         side = abs(rel[0] * p[1] - rel[1] * p[0])
@@ -313,26 +310,16 @@ class SwapExpert:
                 return None  # this axis is done; the next push takes the other
             if not push.fine and abs(remaining) < 0.5 * self.config.fine_distance and push.best < self.config.fine_distance:
                 return None
-            if self._face_now(push, cube_pose, target) != push.face and not push.fine:
+            if not push.fine and self._face(cube_pose, target) != push.face:
                 return None
         return ideal + p * float(np.clip(remaining, 0.0, 2.0 * push.speed))
-
-    def _face_now(self, push: _Push, cube_pose: np.ndarray, target: np.ndarray) -> int:
-        e = target - cube_pose[:2]
-        return self._face(e / max(np.linalg.norm(e), 1e-9), cube_pose[2])
 
     def _back_off(self, cube_pose: np.ndarray, sphere: np.ndarray) -> np.ndarray:
         """Step away from the nearer object (and a little sideways) before planning again."""
         assert self._carrot is not None
         here = self._carrot
-        eps = 1e-3
-        grad = np.array([clearance(here + [eps, 0.0], cube_pose, sphere) - clearance(here - [eps, 0.0], cube_pose, sphere),
-                         clearance(here + [0.0, eps], cube_pose, sphere) - clearance(here - [0.0, eps], cube_pose, sphere)])
-        grad = grad / (np.linalg.norm(grad) + 1e-9)
-        away = rotate(grad, self._rng.uniform(-0.5, 0.5)) * self._draw(self.config.approach_speed) * 0.6
-        dest = np.clip(here + away, R + 10.0, WORKSPACE - R - 10.0)
-        self._queue = [dest + away * 0.5]
+        step = rotate(away(here, cube_pose, sphere), self._rng.uniform(-0.5, 0.5)) * self._draw(self.config.approach_speed) * 0.6
+        dest = np.clip(here + step, R + 10.0, WORKSPACE - R - 10.0)
+        self._queue = [dest + step * 0.5]
         return dest
 
-
-__all__ = ["ExpertConfig", "SwapExpert", "HALF_DIAGONAL", "parking_plan"]

@@ -35,18 +35,23 @@ def in_workspace(points: np.ndarray) -> np.ndarray:
     return np.all((points >= LO) & (points <= HI), axis=-1)
 
 
+def away(point: np.ndarray, cube_pose: np.ndarray, sphere_xy: np.ndarray) -> np.ndarray:
+    """The unit direction in which clearance grows fastest at ``point`` (towards the middle where it is flat)."""
+    p, eps = np.asarray(point, dtype=np.float64), 1e-3
+    grad = np.array([float(clearance(p + [eps, 0.0], cube_pose, sphere_xy) - clearance(p - [eps, 0.0], cube_pose, sphere_xy)),
+                     float(clearance(p + [0.0, eps], cube_pose, sphere_xy) - clearance(p - [0.0, eps], cube_pose, sphere_xy))])
+    norm = np.linalg.norm(grad)
+    return grad / norm if norm > 1e-9 else (WORKSPACE / 2 - p) / (np.linalg.norm(WORKSPACE / 2 - p) + 1e-9)
+
+
 def escape(point: np.ndarray, cube_pose: np.ndarray, sphere_xy: np.ndarray, target: float) -> np.ndarray:
     """Climb the clearance field from ``point`` until ``target`` px clear (a few steps; corners bend the field)."""
-    p, eps = np.asarray(point, dtype=np.float64), 1e-3
+    p = np.asarray(point, dtype=np.float64)
     for _ in range(8):
         gap = target - float(clearance(p, cube_pose, sphere_xy))
         if gap <= 0.5:
             break
-        grad = np.array([float(clearance(p + [eps, 0.0], cube_pose, sphere_xy) - clearance(p - [eps, 0.0], cube_pose, sphere_xy)),
-                         float(clearance(p + [0.0, eps], cube_pose, sphere_xy) - clearance(p - [0.0, eps], cube_pose, sphere_xy))])
-        norm = np.linalg.norm(grad)
-        grad = grad / norm if norm > 1e-9 else (p - WORKSPACE / 2) / (np.linalg.norm(p - WORKSPACE / 2) + 1e-9)
-        p = np.clip(p + grad * gap, LO, HI)
+        p = np.clip(p + away(p, cube_pose, sphere_xy) * gap, LO, HI)
     return p
 
 
