@@ -8,12 +8,22 @@ builds and resets its environment and its controller, and says how a step is obs
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from gpc.tasks.base import EpisodeStats
 from gpc.tasks.planar.scene import WORKSPACE
+
+Scene = TypeVar("Scene", contravariant=True)
+
+
+class ScriptedPolicy(Protocol[Scene]):
+    """A privileged controller: reads the true scene and the goal, returns a target position."""
+
+    def reset(self, seed: int) -> None: ...
+
+    def act(self, sim: Scene, goal: np.ndarray) -> np.ndarray: ...
 
 
 class SteppedEnv(Protocol):

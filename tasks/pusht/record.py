@@ -9,24 +9,19 @@ goal the per-step ``goal`` pose is stored too.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from gpc.tasks.base import EpisodeStats
+from gpc.tasks.planar import record as planar_record
 from gpc.tasks.planar.record import record_loop
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
 from gpc.tasks.pusht.sim import PushTSim
 from gpc.tasks.pusht.sim_model import SIM_KEY, sim_vector
 
+ScriptedPolicy = planar_record.ScriptedPolicy[PushTSim]
 
-class ScriptedPolicy(Protocol):
-    """A privileged controller: reads the true scene, returns a target position."""
-
-    def reset(self, seed: int) -> None: ...
-
-    def act(self, sim: PushTSim, goal_pose: np.ndarray) -> np.ndarray: ...
 
 @dataclass(frozen=True)
 class RecordConfig:

@@ -8,24 +8,18 @@ differ per seed), ``keypoint`` (6x2: ``geometry.keypoints``), ``img`` (96x96x3 u
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from gpc.tasks.base import EpisodeStats
+from gpc.tasks.planar import record as planar_record
 from gpc.tasks.planar.record import record_loop
 from gpc.tasks.planar.sim_model import SIM_KEY
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.env import MAX_EPISODE_STEPS, SwapEnv
 from gpc.tasks.swap.sim import SwapSim
 
-
-class ScriptedPolicy(Protocol):
-    """A privileged controller: reads the true scene and the goal, returns a target position."""
-
-    def reset(self, seed: int) -> None: ...
-
-    def act(self, sim: SwapSim, goal: np.ndarray) -> np.ndarray: ...
+ScriptedPolicy = planar_record.ScriptedPolicy[SwapSim]
 
 
 @dataclass(frozen=True)
