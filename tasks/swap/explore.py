@@ -23,6 +23,7 @@ from gpc.tasks.swap.sim import SwapSim
 
 MODES = ("perturbed", "pushes", "mixed")
 MIDDLE_LOW, MIDDLE_HIGH = 150.0, 362.0  # an object pushed into another there stays clear of the walls
+MOVE_STEPS = 80  # a random move that has not ended after this many steps (walking included) gives way to another
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class ExplorePolicy:
         self._expert.reset(int(self._rng.integers(2**31)))
         self._carrot: np.ndarray | None = None
         self._push_left = 0  # steps left of the current random push once it pushes (pushes mode)
+        self._move_left = 0  # steps left of the current random move, walking included
         self._wander_left, self._heading, self._speed, self._aim_obj = 0, 0.0, 1.0, CUBE
 
     def _draw(self, bounds: tuple[float, float]) -> float:
@@ -114,13 +116,17 @@ class ExplorePolicy:
                 target = self._rng.uniform(PARK_LOW, PARK_HIGH, 2)
         self._expert.set_moves([(obj, target, 8.0)])
         self._push_left = int(self._rng.integers(cfg.push_steps[0], cfg.push_steps[1] + 1))
+        self._move_left = MOVE_STEPS
 
     def _pushes(self, sim: SwapSim, goal: np.ndarray) -> np.ndarray:
         if self._push_left <= 0:
             self._new_push(sim, np.asarray(sim.agent.position, dtype=np.float64))
         target = self._expert.act(sim, goal)
+        self._move_left -= 1
         if self._expert.pushing:
             self._push_left -= 1
+        if self._move_left <= 0:  # no way to push that object there from here: another move
+            self._push_left = 0
         return target
 
     # ------------------------------------------------------------------ perturbed expert
@@ -133,7 +139,7 @@ class ExplorePolicy:
             to_aim = self._aim(sim) - agent
             self._heading = float(np.arctan2(to_aim[1], to_aim[0]))
         if self._wander_left == 0:
-            if self._expert.idle:  # the task is done: random pushes for the rest of the episode
+            if self._expert.idle:  # the task is done: a random push (the expert then puts the objects back)
                 return self._pushes(sim, goal)
             return self._expert.act(sim, goal)
         self._wander_left -= 1
