@@ -15,11 +15,12 @@ import numpy as np
 
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
+from gpc.tasks.planar import draw
+from gpc.tasks.planar.scene import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
 from gpc.tasks.pusht import geometry, render
 from gpc.tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
 from gpc.tasks.pusht.foreign import FOREIGN_FEATURES, from_lerobot, outline_vertices, to_lerobot
 from gpc.tasks.pusht.record import RecordConfig, ScriptedPolicy, episode_scores, observe, record_episode
-from gpc.tasks.pusht.sim import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
 from gpc.tasks.pusht.sim_model import SIM_KEY, SimulatorModel
 
 ENV_ID = "gpc/PushT-v0"
@@ -40,7 +41,7 @@ LAYOUT = TaskLayout(
     # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2.
     frame=FrameLayout(extent=(0.0, float(geometry.WORKSPACE)), marker_size=AGENT_RADIUS,
                       object_colours=(render.BLOCK_FILL, render.BLOCK_EDGE),
-                      agent_colours=(render.AGENT_FILL, render.AGENT_EDGE), angle_offset=-math.pi / 2),
+                      agent_colours=(draw.AGENT_FILL, draw.AGENT_EDGE), angle_offset=-math.pi / 2),
 )
 
 

@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gpc.tasks.planar.paths import follow, rotate
+from gpc.tasks.planar.scene import AGENT_RADIUS
 from gpc.tasks.pusht import geometry
-from gpc.tasks.pusht.sim import AGENT_RADIUS, PushTSim, SimSnapshot
+from gpc.tasks.pusht.sim import PushTSim, SimSnapshot
 
 R = AGENT_RADIUS
 COG = np.array([0.0, 45.0])  # the block's centre of gravity in block coordinates
@@ -109,11 +111,6 @@ def to_block(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
 
 
-def rotate(v: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
-
-
 def sample_contacts(rng: np.random.Generator, n: int, overhang: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Random block-frame disc centres touching the T and the touched edges' outward normals.
 
@@ -167,19 +164,6 @@ def approach_paths(start: np.ndarray, goals: np.ndarray, pose: np.ndarray, margi
             hops.append(nodes[u])
         out.append(np.array(first + hops + [goals[j]]) if np.isfinite(total[last, j]) else None)
     return out
-
-
-def follow(path: np.ndarray, s: float, speed: float, agent: np.ndarray, max_lead: float) -> tuple[float, np.ndarray]:
-    """Advance arc length ``s`` along ``path`` by up to ``speed`` without running ``max_lead`` ahead of the disc."""
-    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    for step in (speed, 0.5 * speed, 0.0):
-        s_new = min(s + step, cum[-1])
-        i = int(np.clip(np.searchsorted(cum, s_new, side="right") - 1, 0, len(seg) - 1))
-        point = path[i] + min((s_new - cum[i]) / max(seg[i], 1e-9), 1.0) * (path[i + 1] - path[i])
-        if np.linalg.norm(point - agent) <= max_lead:
-            break
-    return s_new, point
 
 
 def pose_error(pose: np.ndarray, goal: np.ndarray, rho: float) -> float:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gpc.tasks.planar.paths import follow, rotate
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.expert import (
     COG,
@@ -26,9 +27,7 @@ from gpc.tasks.pusht.expert import (
     approach_paths,
     clearance,
     escape,
-    follow,
     in_workspace,
-    rotate,
     sample_contacts,
     to_block,
 )

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-WORKSPACE = 512.0
+from gpc.tasks.planar.scene import WORKSPACE
+
 GOAL_POSE = np.array([256.0, 256.0, np.pi / 4])
 SUCCESS_COVERAGE = 0.95
 

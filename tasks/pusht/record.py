@@ -9,23 +9,19 @@ goal the per-step ``goal`` pose is stored too.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from gpc.tasks.base import EpisodeStats
+from gpc.tasks.planar import record as planar_record
+from gpc.tasks.planar.record import record_loop
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
 from gpc.tasks.pusht.sim import PushTSim
 from gpc.tasks.pusht.sim_model import SIM_KEY, sim_vector
 
+ScriptedPolicy = planar_record.ScriptedPolicy[PushTSim]
 
-class ScriptedPolicy(Protocol):
-    """A privileged controller: reads the true scene, returns a target position."""
-
-    def reset(self, seed: int) -> None: ...
-
-    def act(self, sim: PushTSim, goal_pose: np.ndarray) -> np.ndarray: ...
 
 @dataclass(frozen=True)
 class RecordConfig:
@@ -62,24 +58,10 @@ def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
     env = PushTEnv(obs_type="state", goal=config.goal)
-    _, info = env.reset(seed=seed)
+    env.reset(seed=seed)
     policy.reset(seed)
-    rows: dict[str, list[np.ndarray]] = {}
-    best, success, n_contacts, contacts = 0.0, False, 0, []
-    for _ in range(config.max_steps):
-        action = np.clip(np.asarray(policy.act(env.sim, env.goal_pose), dtype=np.float64), 0.0, geometry.WORKSPACE)
-        step = {**observe(env, config.images), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
-        for key, value in step.items():
-            rows.setdefault(key, []).append(value)
-        _, reward, terminated, _, info = env.step(action)
-        n_contacts = info["n_contacts"]
-        contacts.append(n_contacts > 0)
-        best = max(best, reward)
-        success = success or terminated
-        if terminated and config.stop_on_success:
-            break
-    data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
-    return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))
+    return record_loop(env, lambda: policy.act(env.sim, env.goal_pose), lambda: observe(env, config.images), seed,
+                       config.max_steps, config.stop_on_success)
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray, goal_pose: np.ndarray = geometry.GOAL_POSE) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its block poses."""

@@ -10,34 +10,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from gpc.tasks.planar.draw import blank, draw_agent, draw_walls, fat_polyline, finish, ipts
 from gpc.tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, tee_vertices, to_world
-from gpc.tasks.pusht.sim import AGENT_RADIUS, WALL_RADIUS, WALLS
 
-# RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255).
+# RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255); the agent's and the
+# walls' are every planar task's (gpc.tasks.planar.draw).
 GOAL = (144, 238, 144)  # LightGreen
 BLOCK_EDGE = (119, 136, 153)  # LightSlateGray
 BLOCK_FILL = (143, 163, 184)
-AGENT_EDGE = (65, 105, 225)  # RoyalBlue
-AGENT_FILL = (78, 126, 255)
-WALL = (211, 211, 211)  # LightGray
-_SIZE = int(WORKSPACE)
-
-
-def _ipts(points: np.ndarray) -> np.ndarray:
-    return np.round(points).astype(np.int32)
-
-
-def _fat_polyline(canvas: np.ndarray, pts: np.ndarray, radius: float, color: tuple[int, int, int]) -> None:
-    """A closed outline of round-capped segments, as pymunk's debug draw makes it."""
-    for a, b in zip(pts, np.roll(pts, -1, axis=0)):
-        _fat_segment(canvas, a, b, radius, color)
-
-
-def _fat_segment(canvas: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float, color: tuple[int, int, int]) -> None:
-    pa, pb = _ipts(a), _ipts(b)
-    cv2.line(canvas, tuple(pa.tolist()), tuple(pb.tolist()), color, thickness=int(round(2 * radius)))
-    for p in (pa, pb):
-        cv2.circle(canvas, tuple(p.tolist()), int(round(radius)), color, thickness=-1)
 
 
 def draw_scene(
@@ -47,21 +27,16 @@ def draw_scene(
     size: int = 96,
 ) -> np.ndarray:
     """RGB ``(size, size, 3)`` uint8 frame of one scene."""
-    canvas = np.full((_SIZE, _SIZE, 3), 255, dtype=np.uint8)
+    canvas = blank()
     for box in TEE_BOXES:
-        cv2.fillPoly(canvas, [_ipts(to_world(box, goal_pose))], GOAL)
-    for a, b in WALLS:
-        _fat_segment(canvas, np.asarray(a, float), np.asarray(b, float), WALL_RADIUS, WALL)
-    center = tuple(_ipts(np.asarray(agent_xy, float)).tolist())
-    cv2.circle(canvas, center, int(round(AGENT_RADIUS)), AGENT_EDGE, thickness=-1)
-    cv2.circle(canvas, center, int(round(AGENT_RADIUS - 4)), AGENT_FILL, thickness=-1)
+        cv2.fillPoly(canvas, [ipts(to_world(box, goal_pose))], GOAL)
+    draw_walls(canvas)
+    draw_agent(canvas, agent_xy)
     for box in TEE_BOXES:
         world = to_world(box, block_pose)
-        cv2.fillPoly(canvas, [_ipts(world)], BLOCK_FILL)
-        _fat_polyline(canvas, world, 2.0, BLOCK_EDGE)
-    if size == _SIZE:
-        return canvas
-    return cv2.resize(canvas, (size, size))
+        cv2.fillPoly(canvas, [ipts(world)], BLOCK_FILL)
+        fat_polyline(canvas, world, 2.0, BLOCK_EDGE)
+    return finish(canvas, size)
 
 
 def draw_state(state: np.ndarray, goal_pose: np.ndarray = GOAL_POSE, size: int = 96) -> np.ndarray:

@@ -11,16 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from gpc.tasks.planar.scene import DT, AgentScene, contact_ticks
 from gpc.tasks.pusht.geometry import TEE_BOXES
-
-SIM_HZ = 100
-CONTROL_HZ = 10
-SUBSTEPS = SIM_HZ // CONTROL_HZ
-DT = 1.0 / SIM_HZ
-K_P, K_V = 100.0, 20.0
-AGENT_RADIUS = 15.0
-WALLS = (((5, 506), (5, 5)), ((5, 5), (506, 5)), ((506, 5), (506, 506)), ((5, 506), (506, 506)))
-WALL_RADIUS = 2.0
 
 StateVector = np.ndarray  # (5,): agent x, agent y, block x, block y, block angle
 
@@ -33,18 +25,11 @@ class SimSnapshot:
     block: tuple[float, float, float, float, float, float]  # x, y, angle, vx, vy, omega
 
 
-class PushTSim:
+class PushTSim(AgentScene):
     """Diffusion Policy's Push-T scene: a kinematic disc under PD control pushing a T."""
 
     def __init__(self) -> None:
-        self.space = pymunk.Space()
-        self.space.gravity = (0.0, 0.0)
-        self.space.damping = 0.0
-        for a, b in WALLS:
-            self.space.add(pymunk.Segment(self.space.static_body, a, b, WALL_RADIUS))
-        self.agent = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
-        self.agent.position = (256.0, 400.0)
-        self.space.add(self.agent, pymunk.Circle(self.agent, AGENT_RADIUS))
+        super().__init__()
         self.block = self._add_tee()
         self.n_contact_points = 0
         self.space.on_collision(0, 0, post_solve=self._count_contacts)
@@ -123,21 +108,12 @@ class PushTSim:
         them; parking the agent far away for 4 empty ticks clears them, so every lookahead
         from the same snapshot is the same, whatever the scene did before.
         """
-        self.agent.position, self.agent.velocity = (-500.0, -500.0), (0.0, 0.0)
-        for _ in range(4):
-            self.space.step(DT)
+        self.lapse_contacts()
         self.restore(snap)
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action: np.ndarray) -> int:
-        """Track target ``action`` (px) for one control period; returns contact points per tick."""
-        tx, ty = float(action[0]), float(action[1])
-        agent, space = self.agent, self.space
+        """Track target ``action`` (px) for one control period; returns contact points per tick (walls included)."""
         self.n_contact_points = 0
-        for _ in range(SUBSTEPS):
-            p, v = agent.position, agent.velocity
-            ax = K_P * (tx - p.x) + K_V * (0.0 - v.x)
-            ay = K_P * (ty - p.y) + K_V * (0.0 - v.y)
-            agent.velocity = (v.x + ax * DT, v.y + ay * DT)
-            space.step(DT)
-        return int(np.ceil(self.n_contact_points / SUBSTEPS))
+        self.drive(action)
+        return contact_ticks(self.n_contact_points)

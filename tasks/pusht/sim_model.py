@@ -3,7 +3,8 @@
 It reads the observation ``sim`` (the full body state, velocities included, which the
 5-entry ``state`` lacks) and replays each candidate chunk in a private ``PushTSim``
 restored from it, returning states in the ``state`` layout so the same reward scores them.
-It implements the ``WorldModel`` protocol structurally (tasks never import models).
+It implements the ``WorldModel`` protocol structurally (tasks never import models); the replay loop is every planar
+task's (``gpc.tasks.planar.sim_model``).
 
 Exactness: body state is restored exactly, but pymunk's contact warm-start cache cannot be
 saved, so a prediction can differ from what the episode's own scene then does by a small
@@ -13,16 +14,12 @@ amount once contacts persist across the decision (measured by ``gpc check-sim``:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from gpc.tasks.planar.sim_model import SIM_KEY, ReplayModel
 from gpc.tasks.pusht.sim import PushTSim, SimSnapshot
 
-if TYPE_CHECKING:
-    import torch
-
-SIM_KEY = "sim"
+__all__ = ["SIM_DIM", "SIM_KEY", "SimulatorModel", "sim_vector", "snapshot_of"]
 SIM_DIM = 10  # agent x, y, vx, vy; block x, y, angle, vx, vy, omega
 
 
@@ -37,31 +34,12 @@ def snapshot_of(vector: np.ndarray) -> SimSnapshot:
     return SimSnapshot(tuple(v[:4]), tuple(v[4:]))  # type: ignore[arg-type]
 
 
-class SimulatorModel:
+class SimulatorModel(ReplayModel):
     """``rollout(history (K, H, 10), actions (K, T, 2)) -> (K, T, 5)`` states, by exact replay."""
 
-    obs_key = SIM_KEY
-    n_obs_steps = 1
-
     def __init__(self) -> None:
-        self._sim = PushTSim()
+        self._scene = PushTSim()
+        super().__init__(self._scene, SIM_DIM, 5)
 
-    def rollout(self, history: torch.Tensor | np.ndarray, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
-        import torch  # here, not at the top: recording, `gpc data` and `gpc compare` read this module without torch
-
-        history = np.asarray(torch.as_tensor(history).detach().cpu(), dtype=np.float64)
-        actions = np.asarray(torch.as_tensor(actions).detach().cpu(), dtype=np.float64)
-        if actions.ndim != 3 or actions.shape[-1] != 2:
-            raise ValueError(f"actions: expected (K, T, 2), got {actions.shape}")
-        if history.ndim == 2:
-            history = np.broadcast_to(history, (actions.shape[0],) + history.shape)
-        if history.ndim != 3 or history.shape[-1] != SIM_DIM or history.shape[0] != actions.shape[0]:
-            raise ValueError(f"history: expected (K={actions.shape[0]}, H, {SIM_DIM}) simulator states, got {history.shape}")
-        out = np.empty(actions.shape[:2] + (5,), dtype=np.float64)
-        sim = self._sim
-        for k in range(actions.shape[0]):
-            sim.restore_clean(snapshot_of(history[k, -1]))
-            for t, action in enumerate(actions[k]):
-                sim.step(action)
-                out[k, t] = sim.state()
-        return torch.as_tensor(out, dtype=torch.float32)
+    def restore(self, vector: np.ndarray) -> None:
+        self._scene.restore_clean(snapshot_of(vector))

@@ -1,0 +1,56 @@
+"""The recording loop of scripted episodes, in Diffusion Policy's data layout.
+
+Each step stores what was observed before acting, the action taken, and ``n_contacts`` of the step that led to the
+observation (as Diffusion Policy's recorder does); images are uint8, everything else float32. A task wraps it: it
+builds and resets its environment and its controller, and says how a step is observed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+
+from gpc.tasks.base import EpisodeStats
+from gpc.tasks.planar.scene import WORKSPACE
+
+Scene = TypeVar("Scene", contravariant=True)
+
+
+class ScriptedPolicy(Protocol[Scene]):
+    """A privileged controller: reads the true scene and the goal, returns a target position."""
+
+    def reset(self, seed: int) -> None: ...
+
+    def act(self, sim: Scene, goal: np.ndarray) -> np.ndarray: ...
+
+
+class SteppedEnv(Protocol):
+    """A reset environment whose ``step`` reports the step's contacts as ``info["n_contacts"]``."""
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]: ...
+
+
+def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callable[[], dict[str, np.ndarray]], seed: int,
+                max_steps: int, stop_on_success: bool) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Step ``env`` with ``act()``'s targets (clipped to the workspace) for at most ``max_steps``; the arrays and their summary.
+
+    ``terminated`` is success; demonstrations stop there (``stop_on_success``), exploration runs on.
+    """
+    rows: dict[str, list[np.ndarray]] = {}
+    best, success, n_contacts, contacts = 0.0, False, 0, []
+    for _ in range(max_steps):
+        action = np.clip(np.asarray(act(), dtype=np.float64), 0.0, WORKSPACE)
+        step = {**observe(), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
+        for key, value in step.items():
+            rows.setdefault(key, []).append(value)
+        _, reward, terminated, _, info = env.step(action)
+        n_contacts = info["n_contacts"]
+        contacts.append(n_contacts > 0)
+        best = max(best, reward)
+        success = success or terminated
+        if terminated and stop_on_success:
+            break
+    data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
+    return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))

@@ -1,0 +1,65 @@
+"""Recording swap episodes in the store layout Push-T's use (the loop is ``gpc.tasks.planar.record``'s).
+
+Each step stores what was observed before acting: ``state`` (7), ``goal`` (4: the targets, every step, since they
+differ per seed), ``keypoint`` (6x2: ``geometry.keypoints``), ``img`` (96x96x3 uint8), the ``action``, and
+``n_contacts`` (1: contacts per tick, agent-object and object-object together) of the step that led to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gpc.tasks.base import EpisodeStats
+from gpc.tasks.planar import record as planar_record
+from gpc.tasks.planar.record import record_loop
+from gpc.tasks.planar.sim_model import SIM_KEY
+from gpc.tasks.swap import geometry
+from gpc.tasks.swap.env import MAX_EPISODE_STEPS, SwapEnv
+from gpc.tasks.swap.sim import SwapSim
+
+ScriptedPolicy = planar_record.ScriptedPolicy[SwapSim]
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """How long episodes run and what is stored."""
+
+    max_steps: int = MAX_EPISODE_STEPS
+    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
+    images: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
+
+
+def observe(env: SwapEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
+    """One step's observation in the data layout; ``sim`` adds the full simulator state (16, never recorded) that the
+    ground-truth world model restores from."""
+    state = env.sim.state()
+    obs = {"state": state.astype(np.float32), "goal": env.goal.astype(np.float32),
+           "keypoint": geometry.keypoints(state).astype(np.float32)}
+    if images:
+        obs["img"] = env.render()
+    if sim:
+        obs[SIM_KEY] = env.sim.vector()
+    return obs
+
+
+def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary (``contact_fraction``:
+    the share of steps with any agent-object or object-object contact)."""
+    env = SwapEnv(obs_type="state")
+    env.reset(seed=seed)
+    policy.reset(seed)
+    return record_loop(env, lambda: policy.act(env.sim, env.goal), lambda: observe(env, config.images), seed,
+                       config.max_steps, config.stop_on_success)
+
+
+def episode_scores(states: np.ndarray, goals: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
+    """Score (max reward) of each recorded episode, recomputed from its states and goals."""
+    rewards = geometry.reward_from_coverages(geometry.coverages(states, goals))
+    starts = np.concatenate([[0], np.asarray(episode_ends)[:-1]]).astype(int)
+    return np.array([rewards[s:int(e)].max() for s, e in zip(starts, episode_ends)])
