@@ -59,7 +59,8 @@ class Task:
     simulator: Callable[[], Any]  # the true simulator as a world model (the ceiling planner ``gt-sim``)
     sim_key: str  # the observation the simulator world model restores from
     render_state: Callable[..., np.ndarray]  # (state, goal=None, size=96) -> RGB frame as the camera would show it
-    episode_scores: Callable[[np.ndarray, np.ndarray], np.ndarray]  # (states, episode ends) -> each episode's score
+    # (a store's arrays by key (``state``, and ``goal`` where it holds one), episode ends) -> each episode's score
+    episode_scores: Callable[[Mapping[str, np.ndarray], np.ndarray], np.ndarray]
     max_episode_steps: int = 300
     # The reward planners score predicted states with, by name (``gpc.models.rewards.state``): tasks never import models.
     state_reward: str = "registration"

@@ -8,6 +8,7 @@ training and every planner run on a task that ``gpc.models`` has never heard of.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import cv2
@@ -119,7 +120,8 @@ class ReachSimulator:
         return torch.as_tensor(out, dtype=torch.float32)
 
 
-def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
+def episode_scores(arrays: Mapping[str, np.ndarray], episode_ends: np.ndarray) -> np.ndarray:
+    states = arrays["state"]
     starts = np.concatenate([[0], episode_ends[:-1]]).astype(int)
     return np.array([max(reward_of(s) for s in states[a:b]) for a, b in zip(starts, episode_ends.astype(int))])
 

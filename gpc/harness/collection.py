@@ -213,7 +213,7 @@ def _staging(out: Path) -> tuple[Path, Path, Path]:
 def _finish_swap(out: Path) -> None:
     """Complete a replacement a crash cut while the stores traded places (the old store is never lost).
 
-    Only the journal says a swap was under way: a folder of that name is otherwise left alone."""
+    Only the journal says a replacement was under way: a folder of that name is otherwise left alone."""
     _, old, journal = _staging(out)
     if not journal.exists():
         return

@@ -13,7 +13,7 @@ from gpc.datasets.store import EpisodeStore
 from gpc.harness.files import check_file_out
 from gpc.harness.video import write_mp4
 from gpc.tasks import DEFAULT_TASK, get_task
-from gpc.tasks.base import IMAGE_KEY, Task
+from gpc.tasks.base import GOAL_KEY, IMAGE_KEY, Task
 
 
 def task_of(store: EpisodeStore) -> str:
@@ -43,7 +43,8 @@ def describe_store(path: Path) -> dict[str, Any]:
         info["contact_fraction"] = float((store.read("n_contacts")[:, 0] > 0).mean())
     scores = store.episode_scores()
     if (scores is None or not np.all(np.isfinite(scores))) and task_name and "state" in store.keys and store.n_episodes:
-        scores = get_task(task_name).episode_scores(store.read("state"), store.episode_ends)
+        arrays = {key: store.read(key) for key in ("state", GOAL_KEY) if key in store.keys}
+        scores = get_task(task_name).episode_scores(arrays, store.episode_ends)
     if scores is not None and store.n_episodes:
         info["score"] = {**_stats(scores), "success_rate": float(np.mean(scores >= 1.0))}
     coverage = get_task(task_name).pose_coverage if task_name else None
@@ -62,13 +63,14 @@ def episode_video(path: Path, episode: int, out: Path | None) -> Path:
     out = out or path.with_name(f"{path.name.removesuffix('.zarr')}_ep{episode}.mp4")
     check_file_out(out, ".mp4")
     store = EpisodeStore.open(path)
-    ep = store.episode(episode, [k for k in ("img", "state") if k in store.keys] or None)
+    ep = store.episode(episode, [k for k in ("img", "state", GOAL_KEY) if k in store.keys] or None)
     if "img" in ep:
         frames = np.clip(np.rint(ep["img"]), 0, 255).astype(np.uint8)
         write_mp4(frames, out, scale=4)
     elif "state" in ep and task_of(store):
         task = get_task(task_of(store))
-        write_mp4((task.render_state(s, size=384) for s in ep["state"]), out)
+        goals = ep.get(GOAL_KEY, [None] * len(ep["state"]))  # a goal drawn per episode is drawn with it
+        write_mp4((task.render_state(s, g, size=384) for s, g in zip(ep["state"], goals)), out)
     else:
         raise DataError(f"{path}: episode {episode} has neither img nor state to draw")
     return out
@@ -81,6 +83,10 @@ def check_stores(task: Task, paths: Sequence[str | Path], keys: Sequence[str]) -
         raise DataError("no dataset given (pass --dataset PATH)")
     for path in paths:
         store = EpisodeStore.open(path)
+        recorded = task_of(store)
+        if recorded and recorded != task.name:
+            raise DataError(f"{path}: holds episodes of task {recorded}, not of task {task.name} (pass --task {recorded}, "
+                            "or a store of this task)")
         if store.n_episodes == 0:
             raise DataError(f"{path}: holds no episodes")
         for key in keys:

@@ -59,3 +59,19 @@ def finish(canvas: np.ndarray, size: int) -> np.ndarray:
     if size == SIZE:
         return canvas
     return cv2.resize(canvas, (size, size))
+
+
+def draw_plan(frame: np.ndarray, chunk: np.ndarray, executed: int) -> np.ndarray:
+    """Overlay a planned action chunk ``(T, 2)`` (px targets) on an RGB frame, in place.
+
+    The part about to be executed is drawn in red, the rest of the plan in orange.
+    """
+    scale = frame.shape[0] / WORKSPACE
+    pts = np.round(np.asarray(chunk, dtype=np.float64) * scale).astype(np.int32)
+    radius = max(1, frame.shape[0] // 128)
+    for i, p in enumerate(pts):
+        color = (220, 30, 30) if i < executed else (255, 165, 0)
+        cv2.circle(frame, tuple(p.tolist()), radius, color, thickness=-1)
+        if i:
+            cv2.line(frame, tuple(pts[i - 1].tolist()), tuple(p.tolist()), color, thickness=max(1, radius // 2))
+    return frame

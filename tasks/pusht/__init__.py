@@ -7,6 +7,7 @@ this package.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any
 
@@ -98,6 +99,15 @@ def pose_coverage(states: np.ndarray, bins: tuple[int, int, int] = (16, 16, 12))
     return len(geometry.pose_cells(states, bins)) / float(np.prod(bins))
 
 
+def stored_scores(arrays: Mapping[str, np.ndarray], ends: np.ndarray) -> np.ndarray:
+    """Each stored episode's score from its block poses, against its own goal where the store holds one (--goal random)."""
+    if "goal" not in arrays:
+        return episode_scores(arrays["state"], ends)
+    starts = np.concatenate([[0], ends[:-1]]).astype(int)
+    return np.array([episode_scores(arrays["state"][a:b], np.array([b - a]), arrays["goal"][a].astype(np.float64))[0]
+                     for a, b in zip(starts, np.asarray(ends).astype(int))])
+
+
 def render_state(state: np.ndarray, goal: np.ndarray | None = None, size: int = 96) -> np.ndarray:
     """A (predicted) state drawn as the camera would show it, the goal drawn too."""
     return render.draw_state(state, geometry.GOAL_POSE if goal is None else np.asarray(goal, dtype=np.float64), size)
@@ -126,7 +136,7 @@ TASK = Task(
     simulator=SimulatorModel,
     sim_key=SIM_KEY,
     render_state=render_state,
-    episode_scores=episode_scores,
+    episode_scores=stored_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
     state_reward="registration",  # the T's mean vertex distance to the goal pose (the paper's registration loss)
     info_metrics=("coverage",),

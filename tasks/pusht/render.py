@@ -10,8 +10,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from gpc.tasks.planar.draw import blank, draw_agent, draw_walls, fat_polyline, finish, ipts
+from gpc.tasks.planar.draw import blank, draw_agent, draw_plan, draw_walls, fat_polyline, finish, ipts
 from gpc.tasks.pusht.geometry import GOAL_POSE, TEE_BOXES, WORKSPACE, tee_vertices, to_world
+
+__all__ = ["draw_futures", "draw_plan", "draw_scene", "draw_state"]
 
 # RGB colours of the original (pygame named colours; fills are 1.2x lighter, capped at 255); the agent's and the
 # walls' are every planar task's (gpc.tasks.planar.draw).
@@ -43,22 +45,6 @@ def draw_state(state: np.ndarray, goal_pose: np.ndarray = GOAL_POSE, size: int =
     """Frame for a 5-d state vector ``[agent xy, block xy, block angle]``."""
     state = np.asarray(state, dtype=np.float64)
     return draw_scene(state[:2], state[2:5], goal_pose, size)
-
-
-def draw_plan(frame: np.ndarray, chunk: np.ndarray, executed: int) -> np.ndarray:
-    """Overlay a planned action chunk ``(T, 2)`` (px targets) on an RGB frame, in place.
-
-    The part about to be executed is drawn in red, the rest of the plan in orange.
-    """
-    scale = frame.shape[0] / WORKSPACE
-    pts = np.round(np.asarray(chunk, dtype=np.float64) * scale).astype(np.int32)
-    radius = max(1, frame.shape[0] // 128)
-    for i, p in enumerate(pts):
-        color = (220, 30, 30) if i < executed else (255, 165, 0)
-        cv2.circle(frame, tuple(p.tolist()), radius, color, thickness=-1)
-        if i:
-            cv2.line(frame, tuple(pts[i - 1].tolist()), tuple(p.tolist()), color, thickness=max(1, radius // 2))
-    return frame
 
 
 def draw_futures(frame: np.ndarray, futures: np.ndarray, scores: np.ndarray, chosen: int, top: int = 5) -> np.ndarray:

@@ -21,14 +21,17 @@ TARGET_WIDTH = 8  # px at 512: about 1.5 px in a 96 px frame
 _N_CORNERS = len(CUBE_KEYPOINTS) - 1
 
 
-def draw_state(state: np.ndarray, goal: np.ndarray, size: int = 96) -> np.ndarray:
-    """RGB ``(size, size, 3)`` uint8 frame of a 7-d state with its 4-d goal."""
-    state, goal = np.asarray(state, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+def draw_state(state: np.ndarray, goal: np.ndarray | None, size: int = 96) -> np.ndarray:
+    """RGB ``(size, size, 3)`` uint8 frame of a 7-d state with its 4-d goal (None: no targets drawn, e.g. a video of
+    states alone)."""
+    state = np.asarray(state, dtype=np.float64)
     canvas = blank()
-    target_pose = np.array([goal[0], goal[1], state[4]])
-    cv2.polylines(canvas, [ipts(cube_keypoints(target_pose)[:_N_CORNERS])], True, CUBE_EDGE, thickness=TARGET_WIDTH)
-    cv2.circle(canvas, tuple(ipts(goal[2:4]).tolist()), int(round(SPHERE_RADIUS - TARGET_WIDTH / 2)), SPHERE_EDGE,
-               thickness=TARGET_WIDTH)
+    if goal is not None:
+        goal = np.asarray(goal, dtype=np.float64)
+        target_pose = np.array([goal[0], goal[1], state[4]])
+        cv2.polylines(canvas, [ipts(cube_keypoints(target_pose)[:_N_CORNERS])], True, CUBE_EDGE, thickness=TARGET_WIDTH)
+        cv2.circle(canvas, tuple(ipts(goal[2:4]).tolist()), int(round(SPHERE_RADIUS - TARGET_WIDTH / 2)), SPHERE_EDGE,
+                   thickness=TARGET_WIDTH)
     draw_walls(canvas)
     draw_agent(canvas, state[:2])
     corners = cube_keypoints(state[2:5])[:_N_CORNERS]
