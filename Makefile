@@ -9,7 +9,16 @@ TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 # make test: pytest processes, one torch thread each (the suite is mostly single-threaded subprocesses).
 TEST_WORKERS ?= 2
-RUN_DIR ?= runs/pusht-$(PROFILE)
+# TASK: the task a pipeline runs (pusht, swap, or one of yours named in GPC_TASKS); its runs and results folders are its own.
+TASK ?= pusht
+RUN_DIR ?= runs/$(TASK)-$(PROFILE)
+# Per task: the state policy's observations, its name in table titles and the paper's state table (if it has one).
+POLICY_OBS.pusht := keypoints
+TITLE.pusht := Push-T
+TITLE.swap := Cube & Sphere Swapping
+PAPER_STATE.pusht := --paper pusht-state
+POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
+TITLE := $(or $(TITLE.$(TASK)),$(TASK))
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
 HUMAN_DATA ?= ../shared/data/pusht_human_train.zarr
 # SEEDS=START:STOP overrides the test seeds of every profile (cpu and paper: 100000:100100; smoke: a few).
@@ -32,6 +41,11 @@ ifneq ($(GOAL),fixed)
     $(error GOAL=$(GOAL): the vision pipeline has fixed goals only (its image policy reads no goal); drop GOAL)
   endif
 endif
+ifneq ($(TASK),pusht)
+  ifneq ($(filter %vision reproduce-pusht,$(MAKECMDGOALS)),)
+    $(error TASK=$(TASK): the vision pipeline and reproduce-pusht run Push-T only so far; use `make reproduce TASK=$(TASK)`)
+  endif
+endif
 ifeq ($(GOAL),random)
   GOAL_TAG := -random-goal
   POLICY_DIR := $(RUN_DIR)/policy-random-goal
@@ -46,11 +60,11 @@ endif
 ifeq ($(EXPLORE),0)
   WM_RUN := $(RUN_DIR)/wm-no-explore
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr
-  RESULTS ?= results/pusht-$(PROFILE)-no-explore$(GOAL_TAG)
+  RESULTS ?= results/$(TASK)-$(PROFILE)-no-explore$(GOAL_TAG)
 else
   WM_RUN := $(RUN_DIR)/wm
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
-  RESULTS ?= results/pusht-$(PROFILE)$(GOAL_TAG)
+  RESULTS ?= results/$(TASK)-$(PROFILE)$(GOAL_TAG)
 endif
 
 # The paper's vision table (Table II: its K and M) and its ceiling, the true simulator ranking the image policy's proposals.
@@ -169,10 +183,11 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-fast lint types bench reproduce-pusht reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-fast lint types bench reproduce reproduce-pusht reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
 
 help:
-	@echo "make reproduce-pusht   collect data and run the Push-T pipeline (PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
+	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
+	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
 	@echo "make reproduce-pusht-vision   the same for image observations (fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
 	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) and their results into artifacts/"
@@ -224,38 +239,38 @@ check-sim: $(STAMP)
 # collection and training resume from what an interrupted run left.
 POLICY_CKPT := $(POLICY_DIR)/checkpoints/last.ckpt
 WM_CKPT := $(WM_RUN)-phase2/checkpoints/last.ckpt
-TABLE := $(if $(filter cpu1fixed,$(PROFILE)$(EXPLORE)$(GOAL)),results/pusht_state.md,$(RESULTS)/pusht_state.md)
+TABLE := $(if $(filter cpu1fixed,$(PROFILE)$(EXPLORE)$(GOAL)),results/$(TASK)_state.md,$(RESULTS)/$(TASK)_state.md)
 
 $(RUN_DIR)/expert.done: | $(STAMP)
-	$(BIN)/gpc collect --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
+	$(BIN)/gpc collect --task $(TASK) --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/expert.zarr
 	touch $@
 
 $(RUN_DIR)/explore.done: | $(STAMP)
-	$(BIN)/gpc collect --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
+	$(BIN)/gpc collect --task $(TASK) --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
 	touch $@
 
 $(RUN_DIR)/expert-random-goal.done: | $(STAMP)
-	$(BIN)/gpc collect --goal random --no-images --out $(RUN_DIR)/expert-random-goal.zarr --episodes $(EXPERT_EPISODES) \
+	$(BIN)/gpc collect --task $(TASK) --goal random --no-images --out $(RUN_DIR)/expert-random-goal.zarr --episodes $(EXPERT_EPISODES) \
 	  --seed 0 --workers $(WORKERS)
 	$(BIN)/gpc data info $(RUN_DIR)/expert-random-goal.zarr
 	touch $@
 
 $(POLICY_DIR).done: $(POLICY_STORE).done
 	if [ -f $(POLICY_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train policy --dataset $(POLICY_STORE).zarr --obs keypoints --goal $(GOAL) $(POLICY) --seed 0 \
+	$(BIN)/gpc train policy --task $(TASK) --dataset $(POLICY_STORE).zarr --obs $(POLICY_OBS) --goal $(GOAL) $(POLICY) --seed 0 \
 	  --out $(POLICY_DIR) $$resume
 	touch $@
 
 $(WM_RUN)-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	if [ -f $(WM_RUN)-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --phase 1 $(WM_DATA) $(WM1) --seed 0 --out $(WM_RUN)-phase1 $$resume
+	$(BIN)/gpc train world-model --task $(TASK) --phase 1 $(WM_DATA) $(WM1) --seed 0 --out $(WM_RUN)-phase1 $$resume
 	touch $@
 
 $(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 	if [ -f $(WM_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --phase 2 $(WM_DATA) $(WM2) --seed 0 --out $(WM_RUN)-phase2 $$resume
+	$(BIN)/gpc train world-model --task $(TASK) --phase 2 $(WM_DATA) $(WM2) --seed 0 --out $(WM_RUN)-phase2 $$resume
 	$(BIN)/gpc eval world-model $(WM_CKPT) $(WM_DATA)
 	touch $@
 
@@ -284,11 +299,13 @@ $(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(POL
 
 $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
 	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
-	  --ceiling $(RESULTS)/$(CEILING) --paper pusht-state --out $@ \
-	  --title "State Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data, $(GOAL) goal)"
+	  --ceiling $(RESULTS)/$(CEILING) $(PAPER_STATE.$(TASK)) --out $@ \
+	  --title "State $(TITLE), PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data, $(GOAL) goal)"
 
-reproduce-pusht: $(TABLE)
+reproduce: $(TABLE)
 	@cat $(TABLE)
+
+reproduce-pusht: reproduce
 
 # The vision pipeline: an image policy, the visual (EDM) world model (phase 1, phase 2, then its one-step student)
 # and the learned image reward; each stage resumes from what an interrupted run left.
@@ -319,7 +336,7 @@ VPRECISION ?= 32-true
 VRESULTS := $(VRESULTS)$(if $(filter-out 32-true,$(VPRECISION)),-$(VPRECISION))
 # BC and the ceiling read no world model, so every VWM_PLAN's table shares them, and so does the exploration ablation
 # (EXPLORE=0 retrains only the world model): one BC and one ceiling per profile and goal.
-VSHARED := $(if $(filter 0,$(EXPLORE)),results/pusht-$(PROFILE)$(GOAL_TAG),$(RESULTS))-vision
+VSHARED := $(if $(filter 0,$(EXPLORE)),results/$(TASK)-$(PROFILE)$(GOAL_TAG),$(RESULTS))-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
 VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
@@ -396,7 +413,7 @@ reproduce-pusht-vision: $(VTABLE)
 # stage, marked done; NAME.resume.ckpt (Lightning's whole state) a training that resumes. The evaluations kept with them
 # (results/NAME/: finished, or the groups a stopped one saved) come back after them, so make finds the finished ones up
 # to date and resumes the rest. Nothing already in runs/ or results/ is replaced.
-ARTIFACTS := artifacts/pusht-$(PROFILE)
+ARTIFACTS := artifacts/$(TASK)-$(PROFILE)
 ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step onpolicy onpolicy-1step,$(notdir $(VWM_RUN))-$(s))
 KEPT_RESULTS := $(sort $(VSHARED) $(VRESULTS))
 # A kept on-policy teacher stands for its recording too (the 9 MB store of small chunk files is not kept): that stamp
