@@ -73,9 +73,13 @@ def episode_settings(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def first_difference(held: Any, given: Any, path: str = "") -> str:
-    """Where two identities first differ, e.g. ``controller.rollouts: float32 there, bfloat16 here``; a setting is
-    named before the controller's label, which only follows from the settings (``bc [ddpm]``)."""
-    return plain_difference(held, given, path, last="controller")
+    """Where two identities first differ, e.g. ``controller.rollouts: float32 there, bfloat16 here``: a setting is
+    named before the checkpoints' contents, and those before the controller's label, which follows from the rest."""
+    return plain_difference(held, given, path, _rank)
+
+
+def _rank(key: str, value: Any) -> int:
+    return 2 if key == "controller" and isinstance(value, str) else 1 if key == "checkpoints" else 0
 
 
 def _plain(value: dict[str, Any]) -> dict[str, Any]:

@@ -173,7 +173,7 @@ def store_digests(arrays: EpisodeArrays) -> list[str]:
         for key in sorted(arrays.data):
             part = np.ascontiguousarray(arrays.data[key][row:stop])
             h.update(f"{key} {part.dtype.str} {part.shape}".encode())
-            h.update(memoryview(part).cast("B"))
+            h.update(part.data)  # C-contiguous: hashed in place
         out.append(h.hexdigest())
         first, row = first + count, stop
     return out
@@ -183,14 +183,20 @@ def check_same_run(earlier: dict[str, Any], record: dict[str, Any], stored: Any,
     """``--resume`` continues only the same run: the same stores (by real path, and their contents), seed, batch size
     and component settings; the first difference is named. What a checkpoint predates (its stores' digests, its batch
     size) is not checked."""
-    def identity(data: dict[str, Any], config: Any) -> dict[str, Any]:
-        out = {"datasets": [os.path.realpath(p) for p in data.get("datasets", [])], "config": config.to_dict()}
-        return {**out, **{key: data[key] for key in ("data_digests", "seed", "batch_size") if key in earlier}}
-
-    held, here = identity(earlier, stored), identity(record, given)
-    if held != here:
-        raise DataError(f"{last}: --resume continues only the same run, and this one differs ({first_difference(held, here)}); "
-                        "train into another --out")
+    then, now = earlier.get("datasets", []), record["datasets"]
+    if [os.path.realpath(p) for p in then] != [os.path.realpath(p) for p in now]:
+        raise DataError(f"{last}: the run trained on --dataset {' '.join(map(str, then))}, not {' '.join(map(str, now))}; "
+                        "--resume continues only the same run (train into another --out)")
+    for path, held, here in zip(now, earlier.get("data_digests", []), record["data_digests"]):
+        if held != here:
+            raise DataError(f"{last}: --dataset {path} changed since the run trained on it (its steps' SHA-256 differs); "
+                            "--resume continues only the same run (train into another --out)")
+    keys = [key for key in ("seed", "batch_size") if key in earlier]
+    held_settings: dict[str, Any] = {"config": stored.to_dict(), **{key: earlier[key] for key in keys}}
+    given_settings: dict[str, Any] = {"config": given.to_dict(), **{key: record[key] for key in keys}}
+    if held_settings != given_settings:
+        raise DataError(f"{last}: --resume continues only the same run, and this one's settings differ "
+                        f"({first_difference(held_settings, given_settings)}); train into another --out")
 
 
 def _stored_config(cls: type[TrainableModule], ckpt: dict[str, Any], path: Path) -> Any:
