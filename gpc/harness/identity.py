@@ -21,11 +21,13 @@ import hashlib
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from gpc.harness.evaluation import EvalConfig
-from gpc.harness.recipes import GT_SIM, PlannerRecipe
 from gpc.models.training.config_io import first_difference as plain_difference
+
+if TYPE_CHECKING:  # `gpc compare` reads identities without importing torch
+    from gpc.harness.evaluation import EvalConfig
+    from gpc.harness.recipes import PlannerRecipe
 
 NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size")  # settings the scores do not depend on
 # What makes two runs' episodes the same episodes, so that they pair seed by seed (summary field, its option);
@@ -45,6 +47,8 @@ def digest(path: str) -> str:
 
 def controller_identity(recipe: PlannerRecipe) -> dict[str, Any]:
     """The controller's part of the identity: its settings and its checkpoints' contents (JSON types)."""
+    from gpc.harness.recipes import GT_SIM  # (loaded with the recipe already)
+
     controller = recipe.summary()
     controller.get("planner", {}).pop("keep_futures", None)  # videos only
     files = [recipe.policy, recipe.world_model, recipe.reward.checkpoint]
