@@ -72,8 +72,10 @@ def test_record_refuses_to_resume_a_store_with_another_sampler(tiny_pusht, tmp_p
 
 
 def test_train_resume_is_refused_for_other_data_or_settings(tiny_pusht, tmp_path):
-    data, run = tmp_path / "data.zarr", tmp_path / "run"
+    data, other, run = tmp_path / "data.zarr", tmp_path / "other.zarr", tmp_path / "run"
     shutil.copytree(tiny_pusht["store"], data)
+    shutil.copytree(tiny_pusht["store"], other)
+    _drop_last_episode(other)
 
     def train(*extra: str) -> tuple[int, str]:
         return inline("train", "policy", "--obs", "keypoints", "--profile", "tiny", "--batch-size", "8", "--accelerator", "cpu",
@@ -81,17 +83,18 @@ def test_train_resume_is_refused_for_other_data_or_settings(tiny_pusht, tmp_path
 
     assert train("--dataset", str(data), "--max-steps", "2")[0] == 0
     before = digest(run)
-    one_line(train("--dataset", str(tiny_pusht["store"]), "--max-steps", "3", "--resume"), 2, str(run / "checkpoints"),
-             f"the run trained on --dataset {data}, not {tiny_pusht['store']}")
+    one_line(train("--dataset", str(other), "--max-steps", "3", "--resume"), 2, str(run / "checkpoints"),
+             f"--dataset {other} is not the data the run trained on ({data} then")
+    one_line(train("--dataset", str(data), "--dataset", str(other), "--max-steps", "3", "--resume"), 2,
+             f"the run trained on --dataset {data}, not {data} {other}")
     one_line(train("--dataset", str(data), "--max-steps", "3", "--lr", "0.5", "--resume"), 2, "config.optim.lr: 0.003 there, 0.5 here")
     one_line(train("--dataset", str(data), "--max-steps", "3", "--seed", "1", "--resume"), 2, "seed: 0 there, 1 here")
     one_line(train("--dataset", str(data), "--max-steps", "3", "--batch-size", "4", "--resume"), 2, "batch_size: 8 there, 4 here")
     _drop_last_episode(data)  # the same path, other content
-    one_line(train("--dataset", str(data), "--max-steps", "3", "--resume"), 2, f"--dataset {data} changed since the run trained on it")
+    one_line(train("--dataset", str(data), "--max-steps", "3", "--resume"), 2, f"--dataset {data} is not the data the run trained on")
     assert digest(run) == before
-    shutil.rmtree(data)
-    shutil.copytree(tiny_pusht["store"], data)  # the content it trained on again: a longer budget is the same run
-    assert train("--dataset", str(data), "--max-steps", "3", "--resume")[0] == 0
+    # the data it trained on, copied elsewhere, and a larger step budget: the same run
+    assert train("--dataset", str(tiny_pusht["store"]), "--max-steps", "3", "--resume")[0] == 0
 
 
 def _drop_last_episode(path: Path) -> None:

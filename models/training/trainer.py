@@ -12,7 +12,7 @@ Run directory layout::
     RUN_DIR/tensorboard/             TensorBoard events
 
 ``resume=True`` continues from ``last.ckpt`` (weights, EMA, optimiser, schedule, step count,
-held-out episodes); the checkpoint's own config wins over the one passed in. ``init``
+held-out episodes), and only the same run: other data (by content) or settings are refused (``check_same_run``). ``init``
 starts a new run from another checkpoint's weights (world-model phase 2 from phase 1),
 keeping the episodes it held out. A non-finite loss skips that update, stops training and
 raises ``TrainingDiverged`` after ``last.ckpt`` has been written with the last good weights.
@@ -180,17 +180,19 @@ def store_digests(arrays: EpisodeArrays) -> list[str]:
 
 
 def check_same_run(earlier: dict[str, Any], record: dict[str, Any], stored: Any, given: Any, last: Path) -> None:
-    """``--resume`` continues only the same run: the same stores (by real path, and their contents), seed, batch size
-    and component settings; the first difference is named. What a checkpoint predates (its stores' digests, its batch
-    size) is not checked."""
-    then, now = earlier.get("datasets", []), record["datasets"]
-    if [os.path.realpath(p) for p in then] != [os.path.realpath(p) for p in now]:
+    """``--resume`` continues only the same run: the same data (each store's steps, in order; by real path where the
+    checkpoint predates their digests), seed, batch size and component settings; the first difference is named.
+    A store moved or copied elsewhere is the same data."""
+    then, now, digests = earlier.get("datasets", []), record["datasets"], earlier.get("data_digests")
+    same_stores = ([os.path.realpath(p) for p in then] == [os.path.realpath(p) for p in now] if digests is None
+                   else len(digests) == len(now))
+    if not same_stores:
         raise DataError(f"{last}: the run trained on --dataset {' '.join(map(str, then))}, not {' '.join(map(str, now))}; "
                         "--resume continues only the same run (train into another --out)")
-    for path, held, here in zip(now, earlier.get("data_digests", []), record["data_digests"]):
+    for old, path, held, here in zip(then, now, digests or [], record["data_digests"]):
         if held != here:
-            raise DataError(f"{last}: --dataset {path} changed since the run trained on it (its steps' SHA-256 differs); "
-                            "--resume continues only the same run (train into another --out)")
+            raise DataError(f"{last}: --dataset {path} is not the data the run trained on ({old} then: the SHA-256 of its "
+                            "steps differs); --resume continues only the same run (train into another --out)")
     keys = [key for key in ("seed", "batch_size") if key in earlier]
     held_settings: dict[str, Any] = {"config": stored.to_dict(), **{key: earlier[key] for key in keys}}
     given_settings: dict[str, Any] = {"config": given.to_dict(), **{key: record[key] for key in keys}}
