@@ -193,16 +193,19 @@ def compare(
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
     from gpc.datasets.locks import exclusive
     from gpc.harness import interrupts
-    from gpc.harness.comparison import adopt_older, check_compare_out, compare_runs, plot_comparison, write_comparison
+    from gpc.harness.comparison import adopt_older, check_compare_out, compare_runs, render_plot, write_comparison
+    from gpc.harness.files import write_bytes_atomic
 
     check_compare_out(out)
-    table = compare_runs(baseline, runs, ceiling)
+    table = compare_runs(baseline, runs, ceiling)  # every input read and checked before anything is written
+    plot = out.with_suffix(".png")
+    png = render_plot(table, plot)
     interrupts.check()
     with exclusive(out, "comparison"):
         check_compare_out(out)
         adopt_older(out)
         md = write_comparison(table, out, title, paper)
-        plot = plot_comparison(table, out.with_suffix(".png"))
+        write_bytes_atomic(plot, png)
     typer.echo(md)
     typer.echo(f"wrote {out}, {out.with_suffix('.json')} and {plot}")
 

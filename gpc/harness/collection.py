@@ -84,10 +84,12 @@ class CollectJob:
     def provenance(self) -> dict:
         """What a store records about how it was made; resuming requires it to match."""
         task = get_task(self.task)
-        if self.kind == CLOSED_LOOP:
-            c = self.controller
-            collector = {**c.summary(), "sampling": asdict(c.sampling), "reward_checkpoint": c.reward.checkpoint,
-                         "reward_aggregate": c.reward.aggregate, "batch": self.batch, "threads": self.threads, "max_steps": self.steps}
+        if self.kind == CLOSED_LOOP:  # the controller's part of a run's identity, as `gpc eval --resume` matches it
+            from gpc.harness.identity import controller_identity
+
+            made_by = controller_identity(self.controller)
+            collector = {**made_by["controller"], "checkpoints": made_by["checkpoints"], "batch": self.batch,
+                         "threads": self.threads, "max_steps": self.steps}
         else:
             collector = task.collector_params(self.kind, self.steps)
         return {
@@ -121,8 +123,11 @@ def _matching(store: EpisodeStore, wanted: dict[str, Any], out: Path) -> None:
     """Resuming needs the store to have been made by the same command (task, env, collector, keys)."""
     have, want = {k: store.attrs.get(k) for k in wanted}, _plain(wanted)
     if have != want:
+        from gpc.harness.identity import first_difference
+
         diff = [k for k in wanted if have[k] != want[k]]
-        raise DataError(f"{out}: holds data of another kind ({', '.join(diff)} differ); choose another --out or pass --overwrite")
+        raise DataError(f"{out}: holds data of another kind ({', '.join(diff)} differ: "
+                        f"{first_difference(have[diff[0]], want[diff[0]], diff[0])}); choose another --out or pass --overwrite")
 
 
 def _ours(out: Path) -> None:

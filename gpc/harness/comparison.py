@@ -18,15 +18,12 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.harness.files import check_file_out, read_json, write_atomic, write_bytes_atomic
+from gpc.harness.identity import EPISODE_SETTINGS, controller_of, episode_settings, first_difference
 from gpc.harness.ownership import adopt
 from gpc.tasks import DEFAULT_TASK, get_task
 
 COMPARISON = "gpc compare"  # the kind its JSON records: what --out may replace
 COMPARISON_SUFFIXES = (".md", ".json", ".png")  # the files --out names
-
-# What makes two runs comparable seed by seed: (summary field, how the message names it).
-SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-steps"), ("sampling_seed", "--sampling-seeds"),
-            ("n_action_steps", "actions executed per decision"))
 
 
 def t_quantile(p: float, dof: int) -> float:
@@ -85,8 +82,11 @@ def _checked_summary(summary: Any, path: Path) -> dict[str, Any]:
         if not isinstance(summary.get(key), dict):
             raise DataError(f"{path}: not a gpc eval summary (no {key!r} object)")
     for key in ("decision_latency_s", "call_latency_s"):
-        if not _number(summary[key].get("p50")):
-            raise DataError(f"{path}: {key} has no number p50")
+        if not _finite(summary[key].get("p50")):
+            raise DataError(f"{path}: {key} has no finite number p50 ({summary[key].get('p50')!r})")
+    for key, share in summary.get("time_share", {}).items() if isinstance(summary.get("time_share"), dict) else ():
+        if not _finite(share):
+            raise DataError(f"{path}: time_share {key!r} is {share!r}, not a finite number")
     if not isinstance(summary.get("controller", {}), dict) or not isinstance(summary.get("time_share", {}), dict):
         raise DataError(f"{path}: controller and time_share must be JSON objects")
     return summary
@@ -98,6 +98,8 @@ def _checked_rows(episodes: Any, path: Path) -> dict[int, dict[str, Any]]:
     for i, r in enumerate(episodes):
         if not (isinstance(r.get("seed"), int) and _number(r.get("score")) and _number(r.get("success"), bool)):
             raise DataError(f"{path}: episode {i} needs an integer seed, a number score and a true/false success")
+        if not _finite(r["score"]):  # JSON's NaN / Infinity: no mean, interval or plot can hold it
+            raise DataError(f"{path}: episode {i} (seed {r['seed']}) has score {r['score']}; a comparison needs a finite score")
     return {r["seed"]: r for r in episodes}
 
 
@@ -105,16 +107,19 @@ def _number(x: Any, *also: type) -> bool:
     return isinstance(x, also) or (isinstance(x, (int, float)) and not isinstance(x, bool))
 
 
+def _finite(x: Any) -> bool:
+    return _number(x) and math.isfinite(x)
+
+
 def settings(summary: dict[str, Any]) -> dict[str, Any]:
-    """The settings a run's per-seed scores depend on, besides its controller (``SETTINGS``)."""
-    merged = {**summary.get("config", {}), **({"n_action_steps": summary["n_action_steps"]} if "n_action_steps" in summary else {})}
-    return {key: merged.get(key) for key, _ in SETTINGS}
+    """The settings a run's per-seed scores depend on, besides its controller (``identity.EPISODE_SETTINGS``)."""
+    return episode_settings(summary)
 
 
 def check_comparable(run: dict[str, Any], base: dict[str, Any], what: str = "the baseline") -> None:
-    """Refuse to pair runs whose settings differ (a setting a run predates is not checked)."""
+    """Refuse to pair runs whose episodes differ (a setting a run predates is not checked); their controllers may differ."""
     mine, theirs = settings(run["summary"]), settings(base["summary"])
-    for key, name in SETTINGS:
+    for key, name in EPISODE_SETTINGS:
         if mine[key] is not None and theirs[key] is not None and mine[key] != theirs[key]:
             raise DataError(f"{run['path']}: {name} {mine[key]} differs from {what}'s {theirs[key]} ({base['path']}); "
                             "only runs with the same settings pair seed by seed")
@@ -124,8 +129,11 @@ def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
     first = parts[0]
     rows: dict[int, Any] = {}
     for part in parts:
-        if part["summary"].get("controller") != first["summary"].get("controller"):
-            raise DataError(f"{path}: {part['path']} ran another controller than {first['path']}; join runs of one controller")
+        mine, theirs = controller_of(part["summary"]), controller_of(first["summary"])
+        mine, theirs = ({k: v for k, v in x.items() if k in mine and k in theirs} for x in (mine, theirs))  # (older parts)
+        if mine != theirs:  # its whole identity but the seeds: sampler, reward, checkpoints' contents included
+            raise DataError(f"{path}: {part['path']} ran another controller than {first['path']} "
+                            f"({first_difference(theirs, mine)}); join runs of one controller")
         check_comparable(part, first, "its first part")
         twice = sorted(set(rows) & set(part["rows"]))
         if twice:
@@ -267,11 +275,19 @@ def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | 
 
 def plot_comparison(table: dict[str, Any], path: Path, size: tuple[int, int] = (900, 560)) -> Path:
     """PNG: mean score against seconds per decision (log axis), one labelled point per controller."""
+    png = render_plot(table, path, size)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(path, png)
+    return path
+
+
+def render_plot(table: dict[str, Any], path: Path, size: tuple[int, int] = (900, 560)) -> bytes:
+    """``plot_comparison``'s PNG, in memory (a comparison is made whole before its first file is written)."""
     import cv2
 
     rows = [r for r in table["rows"] if r["s_per_decision"] > 0]
     if not rows:
-        raise DataError("no controller with a positive decision time to plot")
+        raise DataError(f"{path}: no controller with a positive decision time to plot")
     w, h = size
     left, right, top, bottom = 70, 30, 30, 60
     img = np.full((h, w, 3), 255, np.uint8)
@@ -297,9 +313,7 @@ def plot_comparison(table: dict[str, Any], path: Path, size: tuple[int, int] = (
         p = px(float(x), r["score"])
         cv2.circle(img, p, 5, (200, 40, 40) if r["label"] == "bc" else (40, 90, 200), -1, cv2.LINE_AA)
         cv2.putText(img, r["label"], (p[0] + 7, p[1] - 6), font, 0.42, black, 1, cv2.LINE_AA)
-    path.parent.mkdir(parents=True, exist_ok=True)
     ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     if not ok:
         raise DataError(f"{path}: OpenCV could not encode the plot")
-    write_bytes_atomic(path, png.tobytes())
-    return path
+    return png.tobytes()

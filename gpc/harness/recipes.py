@@ -31,6 +31,8 @@ ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
                    if f.name in ("lr_decay", "trust_region", "keep_best", "knots")}
 # Settings added after results were first written: left out of a summary at their default, so those results resume.
 LATER_DEFAULTS = {"action_steps": None, "knots": 0}
+# The VLM settings that change its answers (not where it is served, its key, time-outs or cache), each left out at its default.
+VLM_IDENTITY = ("model", "temperature", "prompt", "frame_size", "columns", "max_tokens")
 DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
 
 
@@ -106,10 +108,19 @@ class PlannerRecipe:
 
     @property
     def label(self) -> str:
+        """``bc``, ``rank K=100``, ...; a sampler other than the checkpoint's own is named: ``bc [ddpm 100 steps]``."""
         if self.planner is None:
-            return BC
-        name = self.planner.label
-        return name.replace("rank", GT_SIM, 1) if self.world_model == GT_SIM else name
+            name = BC
+        else:
+            name = self.planner.label
+            name = name.replace("rank", GT_SIM, 1) if self.world_model == GT_SIM else name
+        sampler = self.sampler()
+        words = [sampler.get("method"), f"{sampler['steps']} steps" if "steps" in sampler else None, sampler.get("spacing")]
+        return f"{name} [{' '.join(w for w in words if w)}]" if sampler else name
+
+    def sampler(self) -> dict[str, Any]:
+        """The policy's sampler settings that are not the checkpoint's own (``make_recipe`` leaves those out)."""
+        return {key: value for key, value in dataclasses.asdict(self.sampling).items() if value is not None}
 
     def __call__(self) -> Controller:
         from gpc.harness.policies import load_policy
@@ -130,14 +141,23 @@ class PlannerRecipe:
         return Planner(config, world_model, build_reward(self.reward, task), policy, self.sampling)
 
     def summary(self) -> dict[str, Any]:
-        """What a results file records about the controller."""
+        """What a results file records about the controller: every setting its numbers depend on
+        (``gpc.harness.identity``), those added later left out at their defaults."""
         out: dict[str, Any] = {"controller": self.label, "policy": self.policy}
         if self.policy_format not in (None, "gpc"):
             out["policy_format"] = self.policy_format
+        if self.sampler():
+            out["sampling"] = self.sampler()
         if self.planner is not None:
             planner = {key: value for key, value in dataclasses.asdict(self.planner).items()
                        if key not in LATER_DEFAULTS or value != LATER_DEFAULTS[key]}
             out.update(planner=planner, world_model=self.world_model, reward=self.reward.kind)
+            if self.reward.aggregate != "final":
+                out["reward_aggregate"] = self.reward.aggregate
+            if self.reward.vlm is not None:
+                defaults = type(self.reward.vlm)()
+                out["vlm"] = {key: getattr(self.reward.vlm, key) for key in VLM_IDENTITY
+                              if getattr(self.reward.vlm, key) != getattr(defaults, key)}
             if self.rollouts != "float32":  # left out at float32, which every result before this setting used
                 out["rollouts"] = self.rollouts
         return out
@@ -167,6 +187,9 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     levels = loaded.config.noise.train_steps
     if sampling.steps is not None and sampling.steps > levels:
         raise ValueError(f"--steps {sampling.steps}: the policy was trained with {levels} noise levels; use at most {levels}")
+    own = loaded.config.sampler  # a setting given as the checkpoint's own is no setting: the same numbers, the same run
+    sampling = SamplingConfig(*(None if getattr(sampling, key) == getattr(own, key) else getattr(sampling, key)
+                                for key in ("method", "steps", "spacing")))
     unseen = [key for key in loaded.obs_keys if key not in chosen.observed_keys(True, goal)]
     if unseen:
         raise DataError(f"{policy}: the policy reads {', '.join(unseen)}, which --goal {goal} episodes do not "

@@ -8,18 +8,17 @@ that ``out`` can be written and does not hold another run's results (unless ``re
 same command with ``--resume``: the saved groups are not run again, and since every episode draws
 from its own random stream the results equal an uninterrupted run's (decision times aside).
 
-A run's identity is what its numbers depend on: the evaluation settings (not the worker count),
-the controller, and the checkpoints' contents (SHA-256), so a retrained checkpoint is a new run.
+A run's identity is what its numbers depend on (``gpc.harness.identity``): the evaluation settings (not
+the worker count), the controller with its sampler and reward, and the checkpoints' contents (SHA-256),
+so a retrained checkpoint or another sampler is a new run.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import shutil
 from collections.abc import Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -28,38 +27,12 @@ from gpc.datasets.locks import exclusive
 from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
 from gpc.harness.files import check_out, read_json, write_atomic
+from gpc.harness.identity import first_difference, run_identity
 from gpc.harness.ownership import RECORD, adopt, claim, remove
-from gpc.harness.recipes import GT_SIM, PlannerRecipe
+from gpc.harness.recipes import PlannerRecipe
 
 GROUPS = ".groups"
 RESULT_FILES = ("episodes.json", "summary.json", "summary.md")
-NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size")  # settings the scores do not depend on
-
-
-class _Absent:
-    def __repr__(self) -> str:
-        return "absent"
-
-
-ABSENT = _Absent()  # a key one run identity has and the other lacks
-
-
-def _digest(path: str) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def run_identity(recipe: PlannerRecipe, config: EvalConfig) -> dict[str, Any]:
-    """What the run's numbers depend on (see the module docstring)."""
-    files = [recipe.policy, recipe.world_model, recipe.reward.checkpoint]
-    settings = {k: v for k, v in asdict(config).items() if k not in NOT_IDENTITY}
-    controller = recipe.summary()
-    controller.get("planner", {}).pop("keep_futures", None)  # videos only
-    return json.loads(json.dumps({"config": settings, "controller": controller,
-                                  "checkpoints": {f: _digest(f) for f in files if f and f != GT_SIM and Path(f).is_file()}}))
 
 
 def _held(out: Path) -> Any:
@@ -71,16 +44,6 @@ def _held(out: Path) -> Any:
                 raise DataError(f"{record}: not a gpc results record (not a JSON object); move it away or choose another --out")
             return held.get("run", "unknown")
     return None
-
-
-def first_difference(held: Any, given: Any, path: str = "") -> str:
-    """Where two run identities first differ, e.g. ``controller.rollouts: float32 there, bfloat16 here``."""
-    if isinstance(held, dict) and isinstance(given, dict):
-        for key in sorted(set(held) | set(given)):
-            if held.get(key, ABSENT) != given.get(key, ABSENT):
-                return first_difference(held.get(key, ABSENT), given.get(key, ABSENT), f"{path}.{key}" if path else key)
-    shown = [value if value is ABSENT or len(repr(value)) <= 60 else "differs" for value in (held, given)]
-    return f"{path or 'run'}: {shown[0]} there, {shown[1]} here"
 
 
 def _results_record(path: Path) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
 T = TypeVar("T")
@@ -56,3 +57,22 @@ class PlainConfig:
     @classmethod
     def from_dict(cls: type[T], data: Any) -> T:
         return from_plain(cls, dict(data) if isinstance(data, typing.Mapping) else data)
+
+
+class _Absent:
+    def __repr__(self) -> str:
+        return "absent"
+
+
+ABSENT = _Absent()  # a key one record has and the other lacks
+
+
+def first_difference(held: Any, given: Any, path: str = "", rank: Callable[[str, Any], int] = lambda key, value: 0) -> str:
+    """Where two plain records (a stored one, "there", and a wanted one, "here") first differ, by key path, e.g.
+    ``config.optim.lr: 0.001 there, 0.002 here``; ``rank(key, held value)``: keys of a higher rank are compared later."""
+    if isinstance(held, dict) and isinstance(given, dict):
+        for key in sorted(set(held) | set(given), key=lambda k: (rank(k, held.get(k)), k)):
+            if held.get(key, ABSENT) != given.get(key, ABSENT):
+                return first_difference(held.get(key, ABSENT), given.get(key, ABSENT), f"{path}.{key}" if path else key, rank)
+    shown = [value if value is ABSENT or len(repr(value)) <= 60 else "differs" for value in (held, given)]
+    return f"{path or 'run'}: {shown[0]} there, {shown[1]} here"

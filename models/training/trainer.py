@@ -12,7 +12,7 @@ Run directory layout::
     RUN_DIR/tensorboard/             TensorBoard events
 
 ``resume=True`` continues from ``last.ckpt`` (weights, EMA, optimiser, schedule, step count,
-held-out episodes); the checkpoint's own config wins over the one passed in. ``init``
+held-out episodes), and only the same run: other data (by content) or settings are refused (``check_same_run``). ``init``
 starts a new run from another checkpoint's weights (world-model phase 2 from phase 1),
 keeping the episodes it held out. A non-finite loss skips that update, stops training and
 raises ``TrainingDiverged`` after ``last.ckpt`` has been written with the last good weights.
@@ -21,6 +21,7 @@ raises ``TrainingDiverged`` after ``last.ckpt`` has been written with the last g
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import logging
 import os
@@ -33,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
 from lightning.pytorch.callbacks import Callback, LearningRateMonitor, ModelCheckpoint, RichProgressBar
 from lightning.pytorch.loggers import TensorBoardLogger
@@ -43,9 +45,11 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
 from gpc.datasets.sequence import identities, recorded_held_out, recorded_split
 from gpc.datasets.store import EpisodeStore
+from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.precision import native_bf16
 from gpc.models.training.checkpoint import module_state, read_checkpoint
 from gpc.models.training.config import RunConfig
+from gpc.models.training.config_io import first_difference
 from gpc.models.training.module import TrainableModule
 
 LAST, BEST = "last.ckpt", "best.ckpt"
@@ -158,6 +162,45 @@ def _write_run_record(run_dir: Path, kind: str, config: Any, record: dict[str, A
     tmp.replace(run_dir / "run.json")
 
 
+def store_digests(arrays: EpisodeArrays) -> list[str]:
+    """SHA-256 of each store's steps as training reads them (its keys' rows and episode ends): a store whose content
+    changed is other data, whatever its path."""
+    out, first, row = [], 0, 0
+    for count in arrays.counts:
+        ends = np.asarray(arrays.episode_ends[first : first + count], dtype=np.int64)
+        h = hashlib.sha256((ends - row).tobytes())
+        stop = int(ends[-1])
+        for key in sorted(arrays.data):
+            part = np.ascontiguousarray(arrays.data[key][row:stop])
+            h.update(f"{key} {part.dtype.str} {part.shape}".encode())
+            h.update(part.data)  # C-contiguous: hashed in place
+        out.append(h.hexdigest())
+        first, row = first + count, stop
+    return out
+
+
+def check_same_run(earlier: dict[str, Any], record: dict[str, Any], stored: Any, given: Any, last: Path) -> None:
+    """``--resume`` continues only the same run: the same data (each store's steps, in order; by real path where the
+    checkpoint predates their digests), seed, batch size and component settings; the first difference is named.
+    A store moved or copied elsewhere is the same data."""
+    then, now, digests = earlier.get("datasets", []), record["datasets"], earlier.get("data_digests")
+    same_stores = ([os.path.realpath(p) for p in then] == [os.path.realpath(p) for p in now] if digests is None
+                   else len(digests) == len(now))
+    if not same_stores:
+        raise DataError(f"{last}: the run trained on --dataset {' '.join(map(str, then))}, not {' '.join(map(str, now))}; "
+                        "--resume continues only the same run (train into another --out)")
+    for old, path, held, here in zip(then, now, digests or [], record["data_digests"]):
+        if held != here:
+            raise DataError(f"{last}: --dataset {path} is not the data the run trained on ({old} then: the SHA-256 of its "
+                            "steps differs); --resume continues only the same run (train into another --out)")
+    keys = [key for key in ("seed", "batch_size") if key in earlier]
+    held_settings: dict[str, Any] = {"config": stored.to_dict(), **{key: earlier[key] for key in keys}}
+    given_settings: dict[str, Any] = {"config": given.to_dict(), **{key: record[key] for key in keys}}
+    if held_settings != given_settings:
+        raise DataError(f"{last}: --resume continues only the same run, and this one's settings differ "
+                        f"({first_difference(held_settings, given_settings)}); train into another --out")
+
+
 def _stored_config(cls: type[TrainableModule], ckpt: dict[str, Any], path: Path) -> Any:
     try:
         return cls.config_from_dict(ckpt["hyper_parameters"]["config"])
@@ -203,7 +246,7 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
                             "training cannot resume it")
         stored = _stored_config(cls, ckpt, last)
         cls.check_resume(stored, config, str(last))
-        config, start_step = stored, int(ckpt.get("global_step", 0))
+        given_config, config, start_step = config, stored, int(ckpt.get("global_step", 0))
         init = ckpt["hyper_parameters"].get("data", {}).get("init")
     elif init is not None:
         ckpt = read_checkpoint(init, cls.KIND, task=config.task, obs=getattr(config, "obs_type", None))
@@ -226,7 +269,11 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
     config = cls.fit_to_data(config, data.arrays, paths[0], resumed=run.resume)
     record = {"datasets": list(paths), "val_ratio": split[1], "seed": run.seed, "split_seed": split[0],
               "init": None if init is None else str(init),
-              "held_out": identities(data.arrays.sources, data.arrays.counts, data.val_episodes.tolist())}
+              "held_out": identities(data.arrays.sources, data.arrays.counts, data.val_episodes.tolist()),
+              "data_digests": store_digests(data.arrays), "batch_size": run.batch_size}
+    if ckpt is not None and run.resume:  # before run.json is rewritten: a refused resume changes nothing
+        expected = cls.continue_from(given_config, config, str(last)) if init is not None else given_config
+        check_same_run(earlier, record, config, cls.fit_to_data(expected, data.arrays, paths[0], resumed=False), last)
     (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
     _write_run_record(run_dir, cls.KIND, config, record, run)
 
