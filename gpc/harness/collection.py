@@ -32,7 +32,7 @@ from gpc.harness.evaluation import EvalConfig, map_groups
 from gpc.harness.files import check_out, write_atomic
 from gpc.harness.stores import check_stores
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import COLLECTORS, Task
+from gpc.tasks.base import COLLECTORS, Task, check_seeds
 
 CLOSED_LOOP = "closed-loop"
 
@@ -67,8 +67,7 @@ class CollectJob:
         for name in ("episodes", "workers", "max_steps", "batch", "threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
-        if self.seed < 0:
-            raise ValueError(f"--seed {self.seed}: must be non-negative")
+        check_seeds(self.seed, self.seed + self.episodes - 1, f"--seed {self.seed} with --episodes {self.episodes}")
 
     @property
     def steps(self) -> int:
