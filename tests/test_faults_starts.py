@@ -153,3 +153,13 @@ def test_a_lock_file_left_by_a_finished_writer_is_taken_over(tmp_path):
     with exclusive(target, "store"):
         target.mkdir()
     assert lock_path(target).read_text().strip() == str(os.getpid())  # kept beside a target that was made
+
+
+def test_a_video_failing_midway_leaves_no_folder_it_made(tiny_pusht, tmp_path, monkeypatch):
+    import gpc.harness.video as video
+
+    tmp = _mine(tmp_path)
+    before = entries(tmp)
+    monkeypatch.setattr(video.interrupts, "check", _boom)  # fails after the first frame is written
+    one_line(inline("data", "video", str(tiny_pusht["store"]), "--out", str(tmp / "a" / "b" / "v.mp4")), 2, "boom")
+    assert entries(tmp) == before

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.fresh import missing_folders, remove_folders
 from gpc.harness import interrupts
 
 
@@ -18,6 +19,7 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
     path = Path(path)
     if path.is_dir():
         raise DataError(f"{path}: is a folder; name the .mp4 file to write")
+    folders = missing_folders(path.parent)  # made for the video; removed again if no video comes of it
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -52,4 +54,5 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
             writer.release()
         if not done:
             tmp.unlink(missing_ok=True)
+            remove_folders(folders)
     return n
