@@ -163,3 +163,23 @@ def test_a_video_failing_midway_leaves_no_folder_it_made(tiny_pusht, tmp_path, m
     monkeypatch.setattr(video.interrupts, "check", _boom)  # fails after the first frame is written
     one_line(inline("data", "video", str(tiny_pusht["store"]), "--out", str(tmp / "a" / "b" / "v.mp4")), 2, "boom")
     assert entries(tmp) == before
+
+
+@pytest.mark.parametrize("command", ["train", "data export"])
+def test_a_training_or_conversion_failing_after_it_began_leaves_nothing(tiny_pusht, tmp_path, monkeypatch, command):
+    """The run directory (run.json written) or the dataset being staged, their lock file and parent folders go."""
+    import gpc.harness.lerobot_data as lerobot_data
+    import gpc.models.training.trainer as trainer
+
+    tmp = _mine(tmp_path)
+    before = entries(tmp)
+    out = str(tmp / "a" / "b" / "out")
+    if command == "train":
+        monkeypatch.setattr(trainer, "fit_module", _boom)
+        args = ["train", "policy", "-d", str(tiny_pusht["store"]), "--out", out, "--profile", "tiny", "--accelerator", "cpu",
+                "--no-progress", "--max-steps", "2"]
+    else:
+        monkeypatch.setattr(lerobot_data, "write_lerobot", _boom)
+        args = ["data", "export", str(tiny_pusht["store"]), "--out", out]
+    one_line(inline(*args), 2, "boom", alone=False)
+    assert entries(tmp) == before
