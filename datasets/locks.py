@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.fresh import missing_folders, remove_folders
 
 
 def lock_path(target: str | os.PathLike) -> Path:
@@ -25,8 +26,12 @@ def lock_path(target: str | os.PathLike) -> Path:
     return target.parent / f".{target.name}.lock"
 
 
+def _holder(fd: int) -> str:
+    return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+
+
 def _busy(target: str | os.PathLike, what: str, fd: int) -> DataError:
-    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+    holder = _holder(fd)
     return DataError(f"{target}: another gpc process (pid {holder}) is writing this {what}; wait for it to finish or stop it")
 
 
@@ -40,9 +45,11 @@ def check_free(target: str | os.PathLike, what: str) -> None:
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except OSError as exc:
-            if exc.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+            if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                raise
+            if _holder(fd) != str(os.getpid()):  # this process holding it (a check inside its own lock) is no refusal
                 raise _busy(target, what, fd) from None
-            raise
+            return
         fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
@@ -52,26 +59,60 @@ def check_free(target: str | os.PathLike, what: str) -> None:
 def exclusive(target: str | os.PathLike, what: str) -> Iterator[None]:
     """Hold the writer's lock on ``target`` (a store, run directory or results folder) for the block.
 
-    ``what`` names the target in the refusal: "store", "run directory", "results folder".
+    ``what`` names the target in the refusal: "store", "run directory", "results folder". A lock file this call made
+    (and the folders it made for it) is removed again when the block fails, or when it leaves no target behind: a
+    failed start leaves nothing. Removing it is safe because every locker checks, once it holds the lock, that the
+    file it locked is still the one at the path (``_lock``).
     """
     path = lock_path(target)
+    folders = missing_folders(path.parent)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd, created = _lock(path, target, what)
     except OSError as exc:
+        remove_folders(folders)
         raise DataError(f"{target}: cannot write here ({exc.strerror or exc})") from None
+    except BaseException:
+        remove_folders(folders)
+        raise
+    failed = False
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-                raise
-            raise _busy(target, what, fd) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        try:
-            yield
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
+        yield
+    except Exception:
+        failed = True
+        raise
     finally:
+        if created and (failed or not os.path.lexists(os.path.realpath(target))):
+            path.unlink(missing_ok=True)  # still locked: a process that opened it finds it gone and locks anew
+            remove_folders(folders)
+        fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
+
+
+def _lock(path: Path, target: str | os.PathLike, what: str) -> tuple[int, bool]:
+    """An open, exclusively locked descriptor of the lock file at ``path`` and whether this call created the file."""
+    while True:
+        try:
+            fd, created = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+        except FileExistsError:
+            try:
+                fd, created = os.open(path, os.O_RDWR), False
+            except FileNotFoundError:
+                continue  # removed between the two opens: make it anew
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            now, held = os.stat(path), os.fstat(fd)
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                busy = _busy(target, what, fd)
+                os.close(fd)
+                raise busy from None
+            os.close(fd)
+            if isinstance(exc, FileNotFoundError):
+                continue  # its maker removed it while this process waited to lock it
+            raise
+        if (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
+            return fd, created
+        os.close(fd)  # the file locked was removed and another made in its place: lock that one

@@ -10,16 +10,17 @@ from typing import TYPE_CHECKING
 import typer
 
 from gpc.cli.eval_cmd import Checkpoint, Goal, PlannerKind, Threads, recipe_from_options, with_planning_options
+from gpc.cli.limits import MAX_COUNT, MAX_PROCESSES, MAX_SEED
 from gpc.tasks import DEFAULT_TASK
 
 if TYPE_CHECKING:
     from gpc.harness.collection import CollectJob
 
 Out = typer.Option(..., "--out", "-o", help="Zarr store to create or resume (a directory).")
-Episodes = typer.Option(100, "--episodes", "-n", min=1, help="Number of episodes (seeds SEED .. SEED+N-1).")
-FirstSeed = typer.Option(0, "--seed", min=0, help="First environment seed; keep clear of the test seeds (100000+).")
-Workers = typer.Option(1, "--workers", "-j", min=1, help="Parallel worker processes; the store is identical for any count.")
-MaxSteps = typer.Option(None, "--max-steps", min=1, help="Steps per episode at most (default: the task's episode length).")
+Episodes = typer.Option(100, "--episodes", "-n", min=1, max=MAX_COUNT, help="Number of episodes (seeds SEED .. SEED+N-1).")
+FirstSeed = typer.Option(0, "--seed", min=0, max=MAX_SEED, help="First environment seed; keep clear of the test seeds (100000+).")
+Workers = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Parallel worker processes; the store is identical for any count.")
+MaxSteps = typer.Option(None, "--max-steps", min=1, max=MAX_COUNT, help="Steps per episode at most (default: the task's episode length).")
 Overwrite = typer.Option(False, "--overwrite", help="Replace an existing store instead of resuming it.")
 
 
@@ -51,7 +52,7 @@ def record(
     episodes: int = Episodes,
     seed: int = FirstSeed,
     workers: int = Workers,
-    batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call (gpc eval's default: the same episodes)."),
+    batch: int = typer.Option(25, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep per controller call (gpc eval's default: the same episodes)."),
     threads: Threads = 1,
     goal: Goal = "fixed",
     max_steps: int | None = MaxSteps,

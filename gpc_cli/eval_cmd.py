@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from gpc.cli.groups import DefaultToRun
+from gpc.cli.limits import MAX_COUNT, MAX_PROCESSES, MAX_SEED
 from gpc.cli.run_options import with_shared_options
 
 eval_app = typer.Typer(
@@ -23,7 +24,7 @@ M = Annotated[int | None, typer.Option("--M", "-M", help="Gradient steps (opt, r
 Lr = Annotated[float, typer.Option("--lr", help="Adam step size on the actions (px).")]
 LrDecay = Annotated[str, typer.Option("--lr-decay", help="Step size over the M steps: constant or cosine (to 0).")]
 TrustRegion = Annotated[float, typer.Option("--trust-region", help="Gradient planners: how far (px) an action may move from its proposal; 0: no limit.")]
-Knots = Annotated[int, typer.Option("--knots", min=0, help="Gradient planners: ascend N offsets linearly interpolated over the chunk (it bends smoothly); 0: every action.")]
+Knots = Annotated[int, typer.Option("--knots", min=0, max=MAX_COUNT, help="Gradient planners: ascend N offsets linearly interpolated over the chunk (it bends smoothly); 0: every action.")]
 KeepBest = Annotated[bool, typer.Option("--keep-best", help="Gradient planners: end at each candidate's best-scoring iterate (the proposal included), not the last.")]
 Reward = Annotated[str, typer.Option("--reward", help="registration (state futures), learned (image futures) or vlm.")]
 RewardAggregate = Annotated[str, typer.Option("--reward-aggregate", help="final: the last predicted step; discounted: a discounted sum.")]
@@ -31,15 +32,15 @@ RewardCkpt = Annotated[str | None, typer.Option("--reward-checkpoint", help="--r
 VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm: an OpenAI-compatible endpoint, e.g. http://localhost:8000/v1.")]
 VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
-Steps = Annotated[int | None, typer.Option("--steps", min=1, help="Denoising steps (default: the checkpoint's).")]
+Steps = Annotated[int | None, typer.Option("--steps", min=1, max=MAX_COUNT, help="Denoising steps (default: the checkpoint's).")]
 RolloutPrecision = Annotated[str, typer.Option("--precision", help="The world model's rollouts: bf16-auto (bf16 where the model asks for it and the hardware computes it), 32-true (float32 on every machine: the same numbers) or bf16-mixed.")]
-ActionSteps = Annotated[int | None, typer.Option("--action-steps", min=1, help="Planners: actions executed per decision (default: the policy's n_action_steps; at most the chunk the planner scores).")]
+ActionSteps = Annotated[int | None, typer.Option("--action-steps", min=1, max=MAX_COUNT, help="Planners: actions executed per decision (default: the policy's n_action_steps; at most the chunk the planner scores).")]
 PolicyFormat = Annotated[str | None, typer.Option("--policy-format", help="gpc, lerobot or diffusion_policy (default: detected).")]
 PolicyTask = Annotated[str | None, typer.Option("--task", help="Task a LeRobot or Diffusion Policy checkpoint acts in (default: pusht; a gpc checkpoint names its own).")]
 Spacing = Annotated[str | None, typer.Option("--spacing", help="Steps a short chain visits: leading (Diffusion Policy's) or trailing (starts from pure noise).")]
 Goal = Annotated[str, typer.Option("--goal", help="fixed or random goal.")]
-MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, help="Steps per episode at most (default: the task's episode length).")]
-Threads = Annotated[int, typer.Option("--threads", min=1, help="Torch threads per process (part of what makes runs repeatable).")]
+MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, max=MAX_COUNT, help="Steps per episode at most (default: the task's episode length).")]
+Threads = Annotated[int, typer.Option("--threads", min=1, max=MAX_PROCESSES, help="Torch threads per process (part of what makes runs repeatable).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Finish the run this --out holds (its saved groups are not run again).")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace the results this --out holds (with --resume: only if they are another run's).")]
 
@@ -86,12 +87,12 @@ def eval_run(
     seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
     out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
     sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
-    workers: int = typer.Option(1, "--workers", "-j", min=1, help="Processes; results are identical for any count."),
-    batch: int = typer.Option(25, "--batch", min=1, help="Episodes stepped in lockstep per controller call."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Processes; results are identical for any count."),
+    batch: int = typer.Option(25, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep per controller call."),
     threads: Threads = 1,
     goal: Goal = "fixed",
     max_steps: MaxSteps = None,
-    videos: int = typer.Option(0, "--videos", min=0, help="Write MP4s (planned chunk and, for planners, the predicted futures) for the first N seeds."),
+    videos: int = typer.Option(0, "--videos", min=0, max=MAX_COUNT, help="Write MP4s (planned chunk and, for planners, the predicted futures) for the first N seeds."),
     resume: Resume = False,
     overwrite: Overwrite = False,
 ) -> None:
@@ -120,7 +121,7 @@ def plan_one(
     checkpoint: Checkpoint,
     planner: PlannerKind = "rank",
     planning: dict | None = None,
-    seed: int = typer.Option(100000, "--seed", min=0, help="Environment seed."),
+    seed: int = typer.Option(100000, "--seed", min=0, max=MAX_SEED, help="Environment seed."),
     out: Path = typer.Option(Path("results/plan"), "--out", "-o", help="Directory for the MP4 and the episode's JSON."),
     goal: Goal = "fixed",
     max_steps: MaxSteps = None,
@@ -153,10 +154,10 @@ def eval_ascent(
     planning: dict | None = None,
     seeds: str = typer.Option("200000:200010", "--seeds", help="Seed range START:STOP or a list (validation seeds: not the test seeds)."),
     out: Path = typer.Option(Path("results/ascent.md"), "--out", "-o", help="Markdown report to write (and .json beside it)."),
-    batch: int = typer.Option(10, "--batch", min=1, help="Episodes stepped in lockstep per planner call."),
+    batch: int = typer.Option(10, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep per planner call."),
     threads: Threads = 1,
     goal: Goal = "fixed",
-    max_steps: int = typer.Option(48, "--max-steps", min=1, help="Steps per episode (every decision is probed)."),
+    max_steps: int = typer.Option(48, "--max-steps", min=1, max=MAX_COUNT, help="Steps per episode (every decision is probed)."),
 ) -> None:
     """Why GPC-OPT helps or not: every ascent iterate scored by the planner and replayed in the true simulator."""
     import json

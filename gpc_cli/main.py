@@ -11,6 +11,7 @@ from gpc.cli.collect_cmd import register as register_collect
 from gpc.cli.errors import OneLineErrors
 from gpc.cli.eval_cmd import eval_app
 from gpc.cli.eval_cmd import register as register_eval
+from gpc.cli.limits import MAX_COUNT
 from gpc.cli.reward import evaluate as eval_reward
 from gpc.cli.reward import train as train_reward
 from gpc.cli.train import train_app
@@ -95,8 +96,8 @@ def data_export(
 @app.command("check-sim")
 def check_sim(
     data: Path = typer.Option(..., "--data", help="A recorded store of the task (e.g. Diffusion Policy's Push-T data)."),
-    episodes: int = typer.Option(0, "--episodes", min=0, help="Check only the first N episodes (0: all)."),
-    frame_stride: int = typer.Option(10, "--frame-stride", min=1, help="Compare every k-th recorded frame."),
+    episodes: int = typer.Option(0, "--episodes", min=0, max=MAX_COUNT, help="Check only the first N episodes (0: all)."),
+    frame_stride: int = typer.Option(10, "--frame-stride", min=1, max=MAX_COUNT, help="Compare every k-th recorded frame."),
     out: Path | None = typer.Option(None, "--out", help="Also write the figures as JSON here."),
     task: str = typer.Option(DEFAULT_TASK, "--task", help="Task whose simulator replays the store."),
 ) -> None:
@@ -151,12 +152,21 @@ def export(
     from gpc.datasets.errors import DataError
     from gpc.harness.files import check_file_out, write_bytes_atomic
     from gpc.harness.ownership import adopt
+    from gpc.models.policy.formats import DIFFUSION_POLICY, GPC, LEROBOT, detect_format
     from gpc.models.training.checkpoint import for_planning, read_checkpoint
 
     def older_export(file: Path) -> bool:  # a gpc checkpoint written before gpc kept its ownership record
         return bool(read_checkpoint(file, None))
 
     check_file_out(out, ".ckpt", proof=older_export)  # --overwrite replaces only a file gpc wrote
+    try:
+        kind = detect_format(path)
+    except DataError:
+        kind = GPC  # not a policy of any format: read_checkpoint names what is wrong
+    if kind != GPC:  # a foreign policy needs no export: gpc eval reads it as it is
+        what = {LEROBOT: "a LeRobot policy", DIFFUSION_POLICY: "a Diffusion Policy checkpoint"}[kind]
+        raise DataError(f"{path}: is {what}, not a gpc checkpoint; gpc export slims gpc's own checkpoints "
+                        f"(gpc eval, plan and record read {path} as it is)")
     if out.exists() and out.resolve() == path.resolve():
         raise DataError(f"{out}: is the checkpoint being exported; --out names a new file")
     if out.exists() and not overwrite:

@@ -13,17 +13,21 @@ _console = Console()
 
 def parse_seeds(text: str, option: str = "--seeds") -> list[int]:
     """``START:STOP`` (stop excluded) or a comma-separated list."""
+    from gpc.tasks.base import check_seeds
+
     try:
         if ":" in text:
             start, stop = (int(v) for v in text.split(":"))
-            seeds = list(range(start, stop))
+            bounds = (start, stop - 1)
         else:
             seeds = [int(v) for v in text.split(",")]
+            bounds = (min(seeds), max(seeds))
     except ValueError:
         raise ValueError(f"{option} {text!r}: use START:STOP or a comma-separated list of integers") from None
-    if not seeds or min(seeds) < 0:
-        raise ValueError(f"{option} {text!r}: needs at least one non-negative seed")
-    return seeds
+    if bounds[1] < bounds[0]:
+        raise ValueError(f"{option} {text!r}: needs at least one seed (STOP is excluded)")
+    check_seeds(*bounds, f"{option} {text}")  # before a range of 10**23 seeds is made
+    return list(range(start, stop)) if ":" in text else seeds
 
 
 def print_description(info: dict) -> None:

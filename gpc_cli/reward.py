@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from gpc.cli.limits import MAX_COUNT
 from gpc.cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
 from gpc.tasks import DEFAULT_TASK, get_task
 
@@ -25,7 +26,7 @@ def train(
     out: Out,
     task: Task = DEFAULT_TASK,
     profile: str = typer.Option("cpu", "--profile", help="cpu (ResNet18 width 32, 64 px), paper (full ResNet18, 96 px), tiny (tests)."),
-    image_size: int | None = typer.Option(None, "--image-size", min=8, help="Frame size the network reads (default: the profile's); match the world model's frames."),
+    image_size: int | None = typer.Option(None, "--image-size", min=8, max=MAX_COUNT, help="Frame size the network reads (default: the profile's); match the world model's frames."),
     lr: float | None = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's)."),
     options: dict | None = None,
 ) -> None:
@@ -43,9 +44,9 @@ def evaluate(
     dataset: list[Path] = typer.Option(..., "--dataset", "-d", help="Zarr episode store(s); with --split val, the stores it was trained on, in the same order."),
     split: str = typer.Option("val", "--split", help="val: the held-out episodes of the training split; all: every episode."),
     ood: list[Path] = typer.Option([], "--ood", help="Also evaluate every episode of this store, never trained on (e.g. the human data); repeatable."),
-    episodes: int | None = typer.Option(None, "--episodes", "-n", min=1, help="Only the first N episodes of each evaluated set."),
-    stride: int = typer.Option(1, "--stride", min=1, help="Every k-th frame of each episode."),
-    image_size: int | None = typer.Option(None, "--image-size", min=8, help="Downscale frames to this size first (as a world model would produce them)."),
+    episodes: int | None = typer.Option(None, "--episodes", "-n", min=1, max=MAX_COUNT, help="Only the first N episodes of each evaluated set."),
+    stride: int = typer.Option(1, "--stride", min=1, max=MAX_COUNT, help="Every k-th frame of each episode."),
+    image_size: int | None = typer.Option(None, "--image-size", min=8, max=MAX_COUNT, help="Downscale frames to this size first (as a world model would produce them)."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for reward_eval.json and .md (default: the run's eval/)."),
 ) -> None:
     """Predicted vs true registration loss (px) and pose errors on held-out frames (and out-of-distribution stores)."""

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
+from gpc.cli.limits import MAX_COUNT, MAX_PROCESSES, MAX_SEED
 from gpc.tasks import task_names
 
 Datasets = Annotated[list[Path], typer.Option("--dataset", "-d", help="Zarr episode store; repeat to train on several.")]
@@ -24,22 +25,22 @@ def _known_task(name: str) -> str:
 
 
 Task = Annotated[str, typer.Option("--task", help="Task the data comes from.", callback=_known_task)]
-MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, help="Total optimiser steps (default: the profile's).")]
-MaxEpochs = Annotated[int | None, typer.Option("--max-epochs", min=1, help="Passes over the training windows.")]
-BatchSize = Annotated[int | None, typer.Option("--batch-size", min=1, help="Windows per step and device (default: the profile's).")]
+MaxSteps = Annotated[int | None, typer.Option("--max-steps", min=1, max=MAX_COUNT, help="Total optimiser steps (default: the profile's).")]
+MaxEpochs = Annotated[int | None, typer.Option("--max-epochs", min=1, max=MAX_COUNT, help="Passes over the training windows.")]
+BatchSize = Annotated[int | None, typer.Option("--batch-size", min=1, max=MAX_COUNT, help="Windows per step and device (default: the profile's).")]
 Accelerator = Annotated[str, typer.Option("--accelerator", help="Lightning accelerator: cpu, gpu, auto.")]
 Devices = Annotated[str, typer.Option("--devices", help="Devices per node: a number or auto.")]
 Strategy = Annotated[str, typer.Option("--strategy", help="Lightning strategy, e.g. ddp (gloo on CPU).")]
-NumNodes = Annotated[int, typer.Option("--num-nodes", min=1, help="Machines.")]
+NumNodes = Annotated[int, typer.Option("--num-nodes", min=1, max=MAX_PROCESSES, help="Machines.")]
 Precision = Annotated[str, typer.Option("--precision", help="32-true, bf16-mixed, 16-mixed or bf16-auto (bf16-mixed where the hardware computes bf16 natively, else 32-true).")]
-Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed for weights, shuffling, noise and the validation split.")]
+Seed = Annotated[int, typer.Option("--seed", min=0, max=MAX_SEED, help="Seed for weights, shuffling, noise and the validation split.")]
 Resume = Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its last checkpoint.")]
-CheckpointEvery = Annotated[int, typer.Option("--checkpoint-every", min=1, help="Steps between refreshes of last.ckpt.")]
+CheckpointEvery = Annotated[int, typer.Option("--checkpoint-every", min=1, max=MAX_COUNT, help="Steps between refreshes of last.ckpt.")]
 CheckpointMinutes = Annotated[float, typer.Option("--checkpoint-minutes", min=0.01,
                                                   help="Also refresh last.ckpt once this many minutes have passed.")]
 ValRatio = Annotated[float, typer.Option("--val-ratio", min=0.0, max=0.99, help="Share of episodes held out for validation.")]
-ValEvery = Annotated[int | None, typer.Option("--val-every", min=1, help="Steps between validations (default: each epoch).")]
-NumWorkers = Annotated[int, typer.Option("--num-workers", min=0, help="DataLoader worker processes.")]
+ValEvery = Annotated[int | None, typer.Option("--val-every", min=1, max=MAX_COUNT, help="Steps between validations (default: each epoch).")]
+NumWorkers = Annotated[int, typer.Option("--num-workers", min=0, max=MAX_PROCESSES, help="DataLoader worker processes.")]
 Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Show the progress bar.")]
 
 

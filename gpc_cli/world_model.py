@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from gpc.cli.limits import MAX_COUNT
 from gpc.cli.run_options import Datasets, Out, Task, echo_result, run_config, with_run_options
 from gpc.tasks import DEFAULT_TASK, get_task
 
@@ -25,14 +26,14 @@ def train(
     out: Out,
     phase: int = typer.Option(1, "--phase", min=1, max=2, help="1: one-step loss; 2: unrolled loss from phase-1 weights."),
     init: Path | None = typer.Option(None, "--init", help="Checkpoint to start from (phase 2: a phase-1 checkpoint; default: the latest in OUT's sibling *phase1 run)."),
-    unroll: int | None = typer.Option(None, "--unroll", min=2, help="Phase 2: predicted steps per unrolled segment (default: the horizon)."),
+    unroll: int | None = typer.Option(None, "--unroll", min=2, max=MAX_COUNT, help="Phase 2: predicted steps per unrolled segment (default: the horizon)."),
     task: Task = DEFAULT_TASK,
     obs: str = typer.Option("state", "--obs", help="Observations the model predicts: state (MLP) or image (EDM U-Net)."),
     profile: str = typer.Option("cpu", "--profile", help="state: cpu (256x4 MLP, T=16) or tiny; image: cpu (48 px, frameskip 4), paper (96 px, GPU) or tiny."),
     frame: str | None = typer.Option(None, "--frame", help="State models: object (also see the scene from the object's frame; the default when it has an angle) or world (world coordinates only)."),
     feedback: str | None = typer.Option(None, "--feedback", help="Image phase 2: frames fed back as context, denoised (one-step estimate, default) or sampled."),
     distill: Path | None = typer.Option(None, "--distill", help="Image models: a trained model to distil into a student sampling in --sampler-steps (starts from its weights)."),
-    sampler_steps: int = typer.Option(1, "--sampler-steps", min=1, help="--distill: the student's Euler steps per predicted frame."),
+    sampler_steps: int = typer.Option(1, "--sampler-steps", min=1, max=MAX_COUNT, help="--distill: the student's Euler steps per predicted frame."),
     options: dict | None = None,
 ) -> None:
     """Train a world model (phase 1, then phase 2 from it; or a fewer-step student of one); checkpoints land in OUT/checkpoints."""
@@ -60,12 +61,12 @@ def evaluate(
     checkpoint: Path = typer.Argument(..., help="World model checkpoint (its config and normaliser are inside)."),
     dataset: list[Path] = typer.Option(..., "--dataset", "-d", help="Zarr episode store(s); with --split val, the stores it was trained on."),
     split: str = typer.Option("val", "--split", help="val: the held-out episodes of the training split; all: every episode."),
-    episodes: int | None = typer.Option(None, "--episodes", "-n", min=1, help="Only the first N of those episodes."),
-    horizon: int | None = typer.Option(None, "--horizon", min=1, help="Actions rolled out per window (default: the training horizon)."),
-    stride: int | None = typer.Option(None, "--stride", min=1, help="Steps between window starts (default: 1 for state, 8 for image models)."),
-    max_windows: int = typer.Option(512, "--max-windows", min=1, help="Image models: at most this many windows, evenly spread."),
+    episodes: int | None = typer.Option(None, "--episodes", "-n", min=1, max=MAX_COUNT, help="Only the first N of those episodes."),
+    horizon: int | None = typer.Option(None, "--horizon", min=1, max=MAX_COUNT, help="Actions rolled out per window (default: the training horizon)."),
+    stride: int | None = typer.Option(None, "--stride", min=1, max=MAX_COUNT, help="Steps between window starts (default: 1 for state, 8 for image models)."),
+    max_windows: int = typer.Option(512, "--max-windows", min=1, max=MAX_COUNT, help="Image models: at most this many windows, evenly spread."),
     noise: str = typer.Option("frozen", "--noise", help="Image models: frozen (deterministic) or sampled initial noise."),
-    sampler_steps: int | None = typer.Option(None, "--sampler-steps", min=1, help="Image models: Euler steps per predicted frame (default: the checkpoint's, 3)."),
+    sampler_steps: int | None = typer.Option(None, "--sampler-steps", min=1, max=MAX_COUNT, help="Image models: Euler steps per predicted frame (default: the checkpoint's, 3)."),
     pose_reader: Path | None = typer.Option(None, "--pose-reader", help="Image models: read the block pose with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour."),
     held_out_of: Path | None = typer.Option(None, "--held-out-of", help="Use the episodes this other checkpoint held out (among --dataset) instead: two models on one unseen set; refused where this model trained on one of them."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for world_model_eval.json and .md (default: the run's eval/)."),

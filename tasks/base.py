@@ -19,6 +19,17 @@ import numpy as np
 from gpc.datasets.layout import TaskLayout
 
 COLLECTORS = ("expert", "explore")
+# Environment seeds are 32-bit: Push-T's reset draws from NumPy's legacy RandomState (Diffusion Policy's test seeds), and
+# Lightning's seed_everything takes no more. Commands refuse a larger seed, naming the option, before they make anything.
+MAX_SEED = 2**32 - 1
+
+
+def check_seeds(first: int, last: int, option: str) -> None:
+    """Refuse seeds outside 0..MAX_SEED in one line naming ``option`` (``first``..``last``: the seeds it gives)."""
+    if first < 0:
+        raise ValueError(f"{option}: seed {first} is negative; seeds run from 0 to {MAX_SEED} (2**32 - 1)")
+    if last > MAX_SEED:
+        raise ValueError(f"{option}: seed {last} is past {MAX_SEED}, the largest seed (2**32 - 1)")
 STATE_KEY, ACTION_KEY, GOAL_KEY, IMAGE_KEY = "state", "action", "goal", "img"  # the data keys every component shares
 
 

@@ -78,7 +78,7 @@ def test_a_second_signal_ends_the_parallel_workers_with_their_parent(tmp_path):
     proc.send_signal(signal.SIGTERM)
     time.sleep(0.05)  # two signals pending at once are one signal
     proc.send_signal(signal.SIGTERM)
-    one_line(finish(proc), 143, "second signal ended gpc at once", alone=False)
+    one_line(finish(proc), 143, "second signal ended gpc at once")  # alone: no resource-tracker warning below it
     wait_for(lambda: not any(Path(f"/proc/{pid}").exists() for pid in workers), timeout=10)
 
 

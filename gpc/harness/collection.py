@@ -25,7 +25,8 @@ import numpy as np
 
 from gpc import __version__
 from gpc.datasets.errors import DataError
-from gpc.datasets.locks import exclusive
+from gpc.datasets.fresh import Fresh, fresh
+from gpc.datasets.locks import check_free, exclusive
 from gpc.datasets.store import EpisodeStore, store_record
 from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, map_groups
@@ -33,7 +34,7 @@ from gpc.harness.files import check_out, write_atomic
 from gpc.harness.ownership import claim
 from gpc.harness.stores import check_stores
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import COLLECTORS, Task
+from gpc.tasks.base import COLLECTORS, Task, check_seeds
 
 CLOSED_LOOP = "closed-loop"
 
@@ -68,8 +69,7 @@ class CollectJob:
         for name in ("episodes", "workers", "max_steps", "batch", "threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
-        if self.seed < 0:
-            raise ValueError(f"--seed {self.seed}: must be non-negative")
+        check_seeds(self.seed, self.seed + self.episodes - 1, f"--seed {self.seed} with --episodes {self.episodes}")
 
     @property
     def steps(self) -> int:
@@ -190,6 +190,7 @@ def _real(out: Path) -> Path:
 def check_job(job: CollectJob) -> None:
     """Refuse, reading only, a ``--out`` the job may not write (before its lock exists: nothing is left behind)."""
     out = Path(job.out)
+    check_free(out, "store")  # a store another process is writing: its pid, not what its half-made records say
     new, old, journal = _staging(_real(out))
     for place in (new, old) if job.overwrite else ():  # gpc's own staging places, touched only as it left them
         if (place.exists() or place.is_symlink()) and not (_wrote(place) and (place == new or journal.exists())):
@@ -274,33 +275,12 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
     out = Path(job.out)
     check_job(job)
     with exclusive(out, "store"):
-        _finish_swap(_real(out))
-        store, replacing = open_for_job(job)
-        present = store.episode_seeds()
-        done = set() if present is None else {int(s) for s in present}
-        todo = [s for s in job.seeds if s not in done]
-        if on_start:
-            on_start(len(job.seeds) - len(todo))
-        args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
-        episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers)
-        stats: list[dict] = []
-        try:
-            for data, st in episodes:
-                try:
-                    store.append_episode(data, seed=st["seed"], score=st["score"])
-                except OSError as exc:  # a full disk: the episode being written is not committed
-                    kept = f"{out} is unchanged" if replacing else f"{store.n_episodes} whole episodes are kept in {out}"
-                    raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
-                stats.append(st)
-                if on_episode:
-                    on_episode(st)
-                interrupts.check()
-        except interrupts.Interrupted as stop:
-            stop.kept = (f"{out} is unchanged (its replacement was stopped; run the same command to start it again)"
-                         if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")
-            raise
+        real = _real(out)
+        _finish_swap(real)
+        with fresh(_staging(real)[0] if job.overwrite and real.exists() else real) as made:  # a failed start: removed
+            store, replacing, stats, todo = _collect_into(job, made, on_start, on_episode)
         if replacing:
-            _swap(_real(out))
+            _swap(real)
             store = EpisodeStore.open(out)
     scores = np.array([s["score"] for s in stats]) if stats else np.zeros(0)
     return CollectSummary(
@@ -311,6 +291,40 @@ def collect(job: CollectJob, on_start: Callable[[int], None] | None = None,
         contact_fraction=float(np.average([s["contact_fraction"] for s in stats],
                                           weights=[s["steps"] for s in stats])) if stats else None,
     )
+
+
+def _collect_into(job: CollectJob, made: Fresh, on_start: Callable[[int], None] | None,
+                  on_episode: Callable[[dict], None] | None) -> tuple[EpisodeStore, bool, list[dict], list[int]]:
+    """Open the job's store and append its missing episodes; ``made`` is kept from the first episode on (a new store)."""
+    out = Path(job.out)
+    store, replacing = open_for_job(job)
+    present = store.episode_seeds()
+    done = set() if present is None else {int(s) for s in present}
+    todo = [s for s in job.seeds if s not in done]
+    if on_start:
+        on_start(len(job.seeds) - len(todo))
+    args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
+    episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers)
+    stats: list[dict] = []
+    try:
+        for data, st in episodes:
+            try:
+                store.append_episode(data, seed=st["seed"], score=st["score"])
+            except OSError as exc:  # a full disk: the episode being written is not committed
+                kept = (f"{out} is unchanged" if replacing else f"{out} is not kept (no episode was written)"
+                        if made.new and not made.kept else f"{store.n_episodes} whole episodes are kept in {out}")
+                raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
+            if not replacing:
+                made.keep()  # a store holding an episode is a result: never removed
+            stats.append(st)
+            if on_episode:
+                on_episode(st)
+            interrupts.check()
+    except interrupts.Interrupted as stop:
+        stop.kept = (f"{out} is unchanged (its replacement was stopped; run the same command to start it again)"
+                     if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")
+        raise
+    return store, replacing, stats, todo
 
 
 def _init_worker(tasks: Sequence[Task]) -> None:

@@ -29,7 +29,7 @@ from gpc.harness.files import write_atomic
 from gpc.harness.memory import keep_freed_memory
 from gpc.models.planning.protocols import Controller, Plan
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import ACTION_KEY, IMAGE_KEY, Task
+from gpc.tasks.base import ACTION_KEY, IMAGE_KEY, Task, check_seeds
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,7 @@ class EvalConfig:
             raise ValueError("--seeds: no seeds given")
         if len(set(self.seeds)) != len(self.seeds):
             raise ValueError("--seeds: a seed is listed twice")
+        check_seeds(min(self.seeds), max(self.seeds), "--seeds")
         for name in ("max_steps", "batch", "workers", "threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")

@@ -24,6 +24,7 @@ from typing import Any
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _requested: list[int] = []
 _workers: set[int] = set()  # pids of the pool workers this process waits on (``polled``): a second signal ends them
+_semaphores: set[str] = set()  # the named semaphores of those pools' queues: a second signal removes them itself
 
 
 class Interrupted(BaseException):
@@ -61,11 +62,40 @@ def _handler(signum: int, frame: FrameType | None) -> None:
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+        _release_semaphores()
         name = signal.Signals(signum).name
         os.write(2, f"gpc: stopped by {name}: a second signal ended gpc at once; whole episodes, groups and "
                     "checkpoints already written are kept (run the same command, or --resume, to go on)\n".encode())
         os._exit(128 + signum)
     _requested.append(signum)
+
+
+def _release_semaphores() -> None:
+    """Unlink the pools' semaphores and tell multiprocessing's resource tracker so: after ``os._exit`` it would
+    remove them itself, warning on stderr of "leaked semaphore objects" below gpc's one line. The tracker is told
+    through its pipe directly, since its lock may be held by the code the signal interrupted."""
+    from multiprocessing import resource_tracker, synchronize
+
+    tracker = getattr(resource_tracker, "_resource_tracker", None)
+    fd = getattr(tracker, "_fd", None)
+    for name in tuple(_semaphores):
+        try:
+            synchronize.sem_unlink(name)  # type: ignore[attr-defined]  # _multiprocessing's, on every POSIX system
+            if fd is not None:
+                os.write(fd, f"UNREGISTER:{name}:semaphore\n".encode("ascii"))
+        except (OSError, AttributeError):
+            pass  # already gone, or no tracker: nothing would be reported either
+
+
+def _pool_semaphores(pool: Any) -> set[str]:
+    """The names of the semaphores a multiprocessing pool's queues hold (their locks)."""
+    names = set()
+    for queue in (getattr(pool, attr, None) for attr in ("_inqueue", "_outqueue", "_change_notifier")):
+        for lock in (getattr(queue, attr, None) for attr in ("_rlock", "_wlock")):
+            name = getattr(getattr(lock, "_semlock", None), "name", None)
+            if name:
+                names.add(name)
+    return names
 
 
 def active() -> bool:
@@ -111,8 +141,9 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
     with it, so none plays its group to the end for nobody.
     """
     workers = list(getattr(pool, "_pool", ()))  # multiprocessing keeps its workers there
-    pids = {w.pid for w in workers}
+    pids, names = {w.pid for w in workers}, _pool_semaphores(pool)
     _workers.update(pids)
+    _semaphores.update(names)
     try:
         while True:
             try:
@@ -131,3 +162,4 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
             yield item
     finally:
         _workers.difference_update(pids)
+        _semaphores.difference_update(names)

@@ -17,7 +17,7 @@ from typing import Any
 
 from gpc.datasets.errors import DataError
 from gpc.models.networks.precision import check_rollout_precision
-from gpc.models.planning.config import WITH_GRADIENTS, PlannerConfig, SamplingConfig
+from gpc.models.planning.config import PLANNERS, WITH_GRADIENTS, PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
 from gpc.models.policy.controller import PolicyController
 from gpc.models.rewards.registration import AGGREGATES
@@ -26,6 +26,7 @@ from gpc.tasks.base import Task
 
 GT_SIM = "gt-sim"
 BC = "bc"
+PLANNER_CHOICES = (BC, *PLANNERS[:3], GT_SIM, *PLANNERS[3:])  # every --planner value, in the order the help lists them
 REWARDS = ("registration", "learned", "vlm")
 ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
                    if f.name in ("lr_decay", "trust_region", "keep_best", "knots")}
@@ -180,6 +181,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     from gpc.harness.policies import load_policy
     from gpc.models.policy.formats import detect_format
 
+    if planner not in PLANNER_CHOICES:
+        raise ValueError(f"--planner {planner!r}: use one of {', '.join(PLANNER_CHOICES)}")
     policy_format = policy_format or detect_format(policy)
     loaded = load_policy(policy, task, policy_format)
     chosen = get_task(loaded.config.task)

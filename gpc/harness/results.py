@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from gpc.datasets.errors import DataError
-from gpc.datasets.locks import exclusive
+from gpc.datasets.fresh import fresh
+from gpc.datasets.locks import check_free, exclusive
 from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, evaluate, write_results, write_spread
 from gpc.harness.files import check_out, read_json, write_atomic
@@ -67,9 +68,10 @@ def check_results(out: Path, identity: dict[str, Any], resume: bool, overwrite: 
     """Refuse, reading only, results ``out`` holds that this run may not touch.
 
     ``resume``: go on with the same run (refused for another); ``overwrite``: replace another run's
-    results; both: go on if it is the same run, else replace. A file there that gpc did not write
-    is refused whatever the flags (``gpc.harness.ownership``).
+    results; both: go on if it is the same run, else replace. A folder another process is writing is refused first,
+    naming its pid; a file there that gpc did not write is refused whatever the flags (``gpc.harness.ownership``).
     """
+    check_free(out, "results folder")
     claim(_ours(out), proof=_results_record)
     held = _held(out)
     same = held == identity
@@ -128,20 +130,23 @@ def run_into(out: Path, recipe: PlannerRecipe, config: EvalConfig, resume: bool 
     with exclusive(out, "results folder"):
         if resume and (out / "summary.json").is_file() and _held(out) == identity and not (out / GROUPS).exists():
             return {**read_json(out / "summary.json"), "episodes": read_json(out / "episodes.json")}
-        finished = prepare(out, identity, resume, overwrite)
+        with fresh(out) as made, fresh(out / GROUPS) as made_groups:  # a failed start leaves neither behind
+            finished = prepare(out, identity, resume, overwrite)
 
-        def keep(group: dict[str, Any]) -> None:
-            write_atomic(out / GROUPS / f"group-{group['episodes'][0]['seed']:012d}.json", json.dumps(group))
-            if on_group:
-                on_group(group)
+            def keep(group: dict[str, Any]) -> None:
+                write_atomic(out / GROUPS / f"group-{group['episodes'][0]['seed']:012d}.json", json.dumps(group))
+                made.keep()
+                made_groups.keep()
+                if on_group:
+                    on_group(group)
 
-        try:
-            result = evaluate(recipe, config, on_group=keep, finished=finished)
-        except interrupts.Interrupted as stop:
-            done = len(list((out / GROUPS).glob("group-*.json")))
-            stop.kept = (f"{done} of {len(config.groups())} lockstep groups are kept in {out / GROUPS} "
-                         "(run the same command with --resume to finish)")
-            raise
+            try:
+                result = evaluate(recipe, config, on_group=keep, finished=finished)
+            except interrupts.Interrupted as stop:
+                done = len(list((out / GROUPS).glob("group-*.json")))
+                stop.kept = (f"{done} of {len(config.groups())} lockstep groups are kept in {out / GROUPS} "
+                             "(run the same command with --resume to finish)")
+                raise
         result["controller"] = recipe.summary()
         result["run"] = identity
         write_results(result, out, f"{recipe.label}: {recipe.policy}")
@@ -197,7 +202,13 @@ def run_eval(out: Path, recipe: PlannerRecipe, config: EvalConfig, sampling_seed
     if len(runs) == 1:
         return run_into(out, recipe, runs[0][1], resume, overwrite, on_group)
     spread = {"sampling_seeds": list(sampling_seeds), "runs": [identity for _, _, identity in runs]}
-    with exclusive(out, "results folder"):
+    with exclusive(out, "results folder"), fresh(out) as made:
         _clear_other(out, spread, resume)
-        results = [run_into(folder, recipe, one, resume, overwrite, on_group) for folder, one, _ in runs]
+
+        def kept(group: dict[str, Any]) -> None:
+            made.keep()  # the first finished group of any seed's run is a result
+            if on_group:
+                on_group(group)
+
+        results = [run_into(folder, recipe, one, resume, overwrite, kept) for folder, one, _ in runs]
         return write_spread(results, out, f"{recipe.label}: {recipe.policy}", spread)

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from gpc.datasets.errors import DataError
+from gpc.datasets.fresh import missing_folders, remove_folders
 from gpc.harness import interrupts
 from gpc.harness.ownership import install, temporary_beside
 
@@ -19,12 +20,13 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
     path = Path(path)
     if path.is_dir():
         raise DataError(f"{path}: is a folder; name the .mp4 file to write")
+    folders = missing_folders(path.parent)  # made for the video; removed again if no video comes of it
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataError(f"{path}: cannot be written ({exc.strerror or exc})") from None
     tmp = temporary_beside(path, ".partial.mp4")  # a new name: a file of the user's is never written over
-    writer, n = None, 0
+    writer, n, done = None, 0, False
     try:
         for frame in frames:
             frame = np.asarray(frame, dtype=np.uint8)
@@ -44,8 +46,11 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
         if not tmp.is_file() or tmp.stat().st_size == 0:
             raise DataError(f"{path}: cannot be written (the disk may be full)")
         install(tmp, path)  # recorded as gpc's; a file there that gpc did not write is refused, not replaced
+        done = True
     finally:
         if writer is not None:
             writer.release()
         tmp.unlink(missing_ok=True)
+        if not done:
+            remove_folders(folders)
     return n

@@ -35,6 +35,8 @@ def read_checkpoint(
     ``kind``: None takes any kind; ``expect`` names further record fields to match (e.g. ``obs="state"``); ``None`` skips one.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not a checkpoint file")
     if not path.is_file():
         raise DataError(f"{path}: no such checkpoint file")
     try:

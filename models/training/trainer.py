@@ -277,7 +277,7 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
     (run_dir / "checkpoints").mkdir(parents=True, exist_ok=True)
     _write_run_record(run_dir, cls.KIND, config, record, run)
 
-    L.seed_everything(run.seed + start_step, workers=True, verbose=False)
+    L.seed_everything((run.seed + start_step) % 2**32, workers=True, verbose=False)  # a 32-bit seed, --seed near 2**32 too
     if init_state is None:
         module = cls.from_data(config, data, record)
     else:

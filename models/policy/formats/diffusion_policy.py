@@ -186,7 +186,7 @@ def load(path: Path, sources: Mapping[str, FeatureSource], task: str) -> Importe
                 **{f"encoder.parts.0.net.pool.to_maps.{k}": v for k, v in take(enc, "pool.nets.").items()},
                 **{f"encoder.parts.0.net.head.{k}": v for k, v in take(enc, "nets.3.").items()},
             }
-            permute_film(out, unet.step_embed_dim, n_obs, order)
+            permute_film(out, unet.step_embed_dim, n_obs, order, str(path))
             return out
 
     def make() -> PolicyConfig:

@@ -297,7 +297,6 @@ def load(directory: Path, sources: Mapping[str, FeatureSource], task: str) -> Im
         feature_dim = width
     encoder_kw["agent_dims"] = state_width
     unet_weights = {**unet_weights, **encoder_weights}
-    permute_film(unet_weights, step_dim, n_obs, feature_order(parts, ["object", "state"]))
     leftover = [k for k in weights if not k.startswith("diffusion.unet.") and k not in used]
     if leftover:
         raise DataError(f"{weights_file}: the weights do not match the config: {len(leftover)} unexpected (first: {leftover[0]})")
@@ -328,7 +327,8 @@ def load(directory: Path, sources: Mapping[str, FeatureSource], task: str) -> Im
             sampler=SamplerConfig(scheduler.lower(), int(_field(cfg, "num_inference_steps", path, train_steps, int))),
         )
 
-    config = checked_config(make, str(path))
+    config = checked_config(make, str(path))  # before the weights are read by it: n_obs_steps 0 is named here
+    permute_film(unet_weights, step_dim, n_obs, feature_order(parts, ["object", "state"]), str(path))
     source = {
         "format": "lerobot", "generation": generation, "policy_type": SUPPORTED,
         "features": {n: {"type": k, "shape": list(s), "normalization": modes[n],

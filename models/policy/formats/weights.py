@@ -58,16 +58,17 @@ def take(state: Mapping[str, torch.Tensor], prefix: str) -> dict[str, torch.Tens
     return {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
 
 
-def permute_film(state: dict[str, torch.Tensor], step_dim: int, n_obs_steps: int, order: Sequence[int]) -> None:
+def permute_film(state: dict[str, torch.Tensor], step_dim: int, n_obs_steps: int, order: Sequence[int], where: str) -> None:
     """Reorder each FiLM layer's observation columns in place: gpc's feature ``j`` of every step is
-    the source's feature ``order[j]`` (the diffusion-step embedding's ``step_dim`` columns stay first)."""
+    the source's feature ``order[j]`` (the diffusion-step embedding's ``step_dim`` columns stay first).
+    ``where``: the file whose config gives ``n_obs_steps``, named by a mismatch."""
     width = len(order)
     columns = list(range(step_dim)) + [step_dim + s * width + j for s in range(n_obs_steps) for j in order]
     index = torch.tensor(columns)
     for key in [k for k in state if k.endswith("film.1.weight")]:
         weight = state[key]
         if weight.shape[1] != len(columns):
-            raise DataError(f"FiLM layer {key} reads {weight.shape[1]} features, the config gives "
+            raise DataError(f"{where}: FiLM layer {key} reads {weight.shape[1]} features, the config gives "
                             f"{step_dim} + {n_obs_steps} x {width}")
         state[key] = weight[:, index]
 
