@@ -13,6 +13,7 @@ planned for (the new chunk's first actions, which the robot already passed while
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -79,7 +80,8 @@ class PolicyClient:
 
     def __init__(self, uri: str = "ws://127.0.0.1:8765", token: str | None = None, timeout: float = 30.0,
                  max_size: int = 2**26) -> None:
-        self.ws = connect(uri, open_timeout=timeout, max_size=max_size, compression=None)
+        self._stack = contextlib.ExitStack()  # `with connect(...)`: every websockets version's way to hold a connection
+        self.ws = self._stack.enter_context(connect(uri, open_timeout=timeout, max_size=max_size, compression=None))
         self.ws.send(wire.pack({"type": "hello", "wire": wire.WIRE_VERSION, "token": token}))
         self.metadata, _ = self._receive(timeout)
         if self.metadata.get("type") != "metadata":
@@ -128,7 +130,7 @@ class PolicyClient:
                         len(request), size, self.episode, int(reply["decision"]))
 
     def close(self) -> None:
-        self.ws.close()
+        self._stack.close()
 
     def __enter__(self) -> PolicyClient:
         return self
