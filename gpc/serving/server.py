@@ -312,4 +312,6 @@ def serve_recipe(recipe: Any, config: ServeConfig, announce: Callable[[str], Non
                  f"{served.chunk_length} actions per chunk, {served.action_steps} executed per decision; Ctrl-C stops")
 
     asyncio.run(PolicyServer(served).run(ready=ready, stop=lambda: interrupts.requested() is not None))
-    interrupts.check()
+    signum = interrupts.requested()
+    if signum is not None:
+        raise interrupts.Interrupted(signum, "the server stopped; it keeps nothing on disk")
