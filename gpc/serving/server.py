@@ -307,7 +307,8 @@ def serve_recipe(recipe: Any, config: ServeConfig, announce: Callable[[str], Non
     served = ServedPolicy(recipe(), recipe.task, config, recipe.label, recipe.summary())
 
     def ready(port: int) -> None:
-        guard = "token required" if config.token else "no token"
+        local = config.host in (LOOPBACK, "localhost", "::1")
+        guard = "token required" if config.token else "no token" if local else "OPEN TO THE NETWORK WITHOUT A TOKEN"
         announce(f"serving {recipe.label} ({served.task.name}) on ws://{config.host}:{port} ({guard}); "
                  f"{served.chunk_length} actions per chunk, {served.action_steps} executed per decision; Ctrl-C stops")
 
