@@ -82,12 +82,16 @@ class PolicyClient:
                  max_size: int = 2**26) -> None:
         self._stack = contextlib.ExitStack()  # `with connect(...)`: every websockets version's way to hold a connection
         self.ws = self._stack.enter_context(connect(uri, open_timeout=timeout, max_size=max_size, compression=None))
-        self.ws.send(wire.pack({"type": "hello", "wire": wire.WIRE_VERSION, "token": token}))
-        self.metadata, _ = self._receive(timeout)
-        if self.metadata.get("type") != "metadata":
-            raise ServerError(f"handshake: a metadata message was expected, got {self.metadata.get('type')!r}")
-        if self.metadata.get("wire_version") != wire.WIRE_VERSION:
-            raise ServerError(f"wire format {self.metadata.get('wire_version')}: this client speaks {wire.WIRE_VERSION}")
+        try:
+            self.ws.send(wire.pack({"type": "hello", "wire": wire.WIRE_VERSION, "token": token}))
+            self.metadata, _ = self._receive(timeout)
+            if self.metadata.get("type") != "metadata":
+                raise ServerError(f"handshake: a metadata message was expected, got {self.metadata.get('type')!r}")
+            if self.metadata.get("wire_version") != wire.WIRE_VERSION:
+                raise ServerError(f"wire format {self.metadata.get('wire_version')}: this client speaks {wire.WIRE_VERSION}")
+        except BaseException:
+            self._stack.close()
+            raise
         self.obs_keys: list[str] = list(self.metadata["observations"])
         self.n_obs_steps: int = int(self.metadata["n_obs_steps"])
         self.episode, self.decision, self._next_id = 0, 0, 0
