@@ -100,7 +100,7 @@ def main() -> None:
                         "skipped_per_decision": statistics.fmean(s for r in rows for s in r["skipped"][1:])}
     print(json.dumps(summary))
     if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "episodes": rows}, indent=1))
+        args.json.write_text(json.dumps({"metadata": meta, "summary": summary, "episodes": rows}, indent=1))
     if args.video:
         from gpc.harness.video import write_mp4
 

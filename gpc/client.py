@@ -159,8 +159,10 @@ class AsyncChunks:
     Call ``start(first_obs, episode)`` (one synchronous decision), then each control step ``next_action()``
     and ``observe(obs)`` with the observation the action led to. The next request goes out ``lead`` steps
     before the current chunk's executed head ends (default: the measured round trip in steps, rounded up),
-    so it arrives when the head is done; when it is late the robot goes on with the current chunk's tail,
-    and waits only when the whole chunk is spent.
+    so it arrives when the head is done. When it is late the robot goes on with the current chunk's tail, up to
+    the step where the coming chunk would keep fewer than ``action_steps`` actions; only there does it wait. So a
+    decision slower than a chunk costs the robot the decision's time minus the ``chunk_length - action_steps``
+    steps it moved meanwhile, never a second decision.
     """
 
     def __init__(self, client: PolicyClient, fps: float | None = None, lead: int | None = None) -> None:
@@ -170,6 +172,7 @@ class AsyncChunks:
         self.stats = AsyncStats()
         self._pending: threading.Thread | None = None
         self._reply: tuple[Decision | None, BaseException | None, int] | None = None
+        self._reply_at: int | None = None  # the step the chunk in flight is planned for
 
     def start(self, first: Mapping[str, Any], episode: int = 0) -> None:
         self.wait_pending()
@@ -200,13 +203,13 @@ class AsyncChunks:
             except BaseException as exc:  # handed to the control loop
                 self._reply = (None, exc, at)
 
-        self._reply = None
+        self._reply, self._reply_at = None, at
         self._pending = threading.Thread(target=work, daemon=True)
         self._pending.start()
 
     def _switch(self, idle: float) -> None:
         assert self._pending is not None and self._reply is not None
-        self._pending = None
+        self._pending, self._reply_at = None, None
         decision, exc, at = self._reply
         if exc is not None:
             raise exc
@@ -224,7 +227,15 @@ class AsyncChunks:
         if self._pending is not None:
             self._pending.join()
             if not keep:
-                self._pending = None
+                self._pending, self._reply_at = None, None
+
+    def _hold(self) -> int:
+        """The index of the current chunk at which the robot waits for the chunk in flight: where that chunk, planned
+        for the step it was requested at, would have fewer than ``action_steps`` actions left (at most the chunk's end)."""
+        length = len(self.current.chunk)
+        if self._reply_at is None:
+            return length
+        return min(length, self._reply_at - self.chunk_step + length - self.current.action_steps)
 
     def observe(self, obs: Mapping[str, Any]) -> None:
         """The observation after the last action (the next request plans from it)."""
@@ -237,12 +248,12 @@ class AsyncChunks:
         index = self.step - self.chunk_step
         if self._pending is None and index >= max(0, self.current.action_steps - self.lead):
             self._request(self.step)
-        if index >= len(self.current.chunk):  # the whole chunk spent: the robot waits for the next one
+        if index >= self._hold():  # going on would leave the coming chunk too few actions: the robot waits for it
             self._await()
             index = self.step - self.chunk_step
-            if index >= len(self.current.chunk):  # planned longer than a chunk lasts: plan from now, synchronously
-                self._request(self.step)
-                self._await()
-                index = 0
+        if index >= len(self.current.chunk):  # never with a server's chunk_length >= action_steps; planned anew if so
+            self._request(self.step)
+            self._await()
+            index = 0
         self.step += 1
         return self.current.chunk[index]
