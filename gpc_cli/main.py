@@ -14,6 +14,7 @@ from gpc.cli.eval_cmd import register as register_eval
 from gpc.cli.limits import MAX_COUNT
 from gpc.cli.reward import evaluate as eval_reward
 from gpc.cli.reward import train as train_reward
+from gpc.cli.serve_cmd import register as register_serve
 from gpc.cli.train import train_app
 from gpc.cli.world_model import evaluate as eval_world_model
 from gpc.cli.world_model import train as train_world_model
@@ -28,6 +29,7 @@ app.add_typer(data_app, name="data")
 app.add_typer(train_app, name="train")
 register_collect(app)
 register_eval(app)
+register_serve(app)
 train_app.command("world-model")(train_world_model)
 eval_app.command("world-model")(eval_world_model)
 train_app.command("reward")(train_reward)
