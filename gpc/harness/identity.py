@@ -17,12 +17,12 @@ the sampler at the checkpoint's own, the aggregate ``final``), so those results 
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gpc.harness.ownership import digest_file
 from gpc.models.training.config_io import first_difference as plain_difference
 
 if TYPE_CHECKING:  # `gpc compare` reads identities without importing torch
@@ -36,15 +36,6 @@ EPISODE_SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-s
                     ("n_action_steps", "actions executed per decision"))
 
 
-def digest(path: str) -> str:
-    """SHA-256 of a file's contents."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def controller_identity(recipe: PlannerRecipe) -> dict[str, Any]:
     """The controller's part of the identity: its settings and its checkpoints' contents (JSON types)."""
     from gpc.harness.recipes import GT_SIM  # (loaded with the recipe already)
@@ -52,7 +43,7 @@ def controller_identity(recipe: PlannerRecipe) -> dict[str, Any]:
     controller = recipe.summary()
     controller.get("planner", {}).pop("keep_futures", None)  # videos only
     files = [recipe.policy, recipe.world_model, recipe.reward.checkpoint]
-    checkpoints = {f: digest(f) for f in files if f and f != GT_SIM and Path(f).is_file()}
+    checkpoints = {f: digest_file(Path(f)) for f in files if f and f != GT_SIM and Path(f).is_file()}
     return _plain({"controller": controller, "checkpoints": checkpoints})
 
 

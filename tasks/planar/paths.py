@@ -22,3 +22,18 @@ def follow(path: np.ndarray, s: float, speed: float, agent: np.ndarray, max_lead
         if np.linalg.norm(point - agent) <= max_lead:
             break
     return s_new, point
+
+
+def all_pairs(nodes: np.ndarray, ii: np.ndarray, jj: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shortest paths between every two of ``nodes`` ``(K, 2)`` over the straight edges ``(ii, jj)`` that are
+    ``visible`` (Floyd-Warshall): distances ``(K, K)`` and each path's next node ``(K, K)``."""
+    k = len(nodes)
+    dist = np.full((k, k), np.inf)
+    np.fill_diagonal(dist, 0.0)
+    dist[ii[visible], jj[visible]] = dist[jj[visible], ii[visible]] = np.linalg.norm(nodes[ii] - nodes[jj], axis=1)[visible]
+    nxt = np.tile(np.arange(k), (k, 1))
+    for m in range(k):
+        via = dist[:, m, None] + dist[None, m, :]
+        better = via < dist
+        dist, nxt = np.where(better, via, dist), np.where(better, nxt[:, m, None], nxt)
+    return dist, nxt

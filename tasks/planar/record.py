@@ -8,6 +8,7 @@ builds and resets its environment and its controller, and says how a step is obs
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
@@ -54,3 +55,10 @@ def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callabl
             break
     data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
     return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))
+
+
+def scripted_params(policy: object, kind: str, max_steps: int) -> dict[str, Any]:
+    """What a store records about the scripted collector that wrote it (its class and config): resuming checks it."""
+    config = getattr(policy, "config", None)
+    return {"policy": type(policy).__name__, "config": asdict(config) if config is not None else {},
+            "stop_on_success": kind == "expert", "max_steps": max_steps}

@@ -7,6 +7,7 @@ they were added, so the order is part of a task's physics) and counts the contac
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pymunk
@@ -67,3 +68,26 @@ class AgentScene:
 def contact_ticks(points: int) -> int:
     """Contact points summed over a control period's ticks, as contacts per tick (rounded up)."""
     return int(np.ceil(points / SUBSTEPS))
+
+
+OBS_TYPES = ("state", "keypoints", "pixels")  # what a planar task's Gymnasium environment can observe
+
+
+@dataclass(frozen=True)
+class ObsConfig:
+    """What a planar environment observes: ``obs_type`` is one of ``OBS_TYPES`` or a '+'-joined combination."""
+
+    obs_type: str = "state"
+    render_size: int = 96
+
+    def __post_init__(self) -> None:
+        parts = self.obs_type.split("+")
+        bad = [p for p in parts if p not in OBS_TYPES]
+        if bad or len(set(parts)) != len(parts):
+            raise ValueError(f"obs_type {self.obs_type!r}: use one of {', '.join(OBS_TYPES)} or a '+'-joined combination")
+        if self.render_size < 8:
+            raise ValueError(f"render_size {self.render_size}: must be at least 8")
+
+    @property
+    def obs_parts(self) -> tuple[str, ...]:
+        return tuple(self.obs_type.split("+"))

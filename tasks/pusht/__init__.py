@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict
 from typing import Any
 
 import gymnasium as gym
@@ -17,6 +16,7 @@ import numpy as np
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.planar import draw
+from gpc.tasks.planar.record import scripted_params
 from gpc.tasks.planar.scene import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
 from gpc.tasks.pusht import geometry, render
 from gpc.tasks.pusht.env import GOAL_MODES, MAX_EPISODE_STEPS, PushTEnv
@@ -70,10 +70,7 @@ def scripted_policy(kind: str) -> ScriptedPolicy:
 
 
 def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
-    policy = scripted_policy(kind)
-    config = getattr(policy, "config", None)
-    return {"policy": type(policy).__name__, "config": asdict(config) if config is not None else {},
-            "stop_on_success": kind == "expert", "max_steps": max_steps}
+    return scripted_params(scripted_policy(kind), kind, max_steps)
 
 
 def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:

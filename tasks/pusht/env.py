@@ -17,38 +17,25 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from gpc.tasks.planar.scene import ObsConfig
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.render import draw_scene
 from gpc.tasks.pusht.sim import PushTSim
 
-OBS_TYPES = ("state", "keypoints", "pixels")
 GOAL_MODES = ("fixed", "random")
 MAX_EPISODE_STEPS = 300
 
 
 @dataclass(frozen=True)
-class PushTConfig:
+class PushTConfig(ObsConfig):
     """What an environment observes and where its goal lies."""
 
-    obs_type: str = "state"
     goal: str = "fixed"
-    render_size: int = 96
 
     def __post_init__(self) -> None:
-        parts = self.obs_type.split("+")
-        bad = [p for p in parts if p not in OBS_TYPES]
-        if bad or len(set(parts)) != len(parts):
-            raise ValueError(
-                f"obs_type {self.obs_type!r}: use one of {', '.join(OBS_TYPES)} or a '+'-joined combination"
-            )
+        super().__post_init__()
         if self.goal not in GOAL_MODES:
             raise ValueError(f"goal {self.goal!r}: use one of {', '.join(GOAL_MODES)}")
-        if self.render_size < 8:
-            raise ValueError(f"render_size {self.render_size}: must be at least 8")
-
-    @property
-    def obs_parts(self) -> tuple[str, ...]:
-        return tuple(self.obs_type.split("+"))
 
 
 def initial_state(seed: int) -> np.ndarray:

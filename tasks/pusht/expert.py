@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gpc.tasks.planar.paths import follow, rotate
+from gpc.tasks.planar.paths import all_pairs, follow, rotate
 from gpc.tasks.planar.scene import AGENT_RADIUS
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.sim import PushTSim, SimSnapshot
@@ -143,14 +143,7 @@ def approach_paths(start: np.ndarray, goals: np.ndarray, pose: np.ndarray, margi
     k = len(nodes)
     ii, jj = np.triu_indices(k, 1)
     vis = segments_clear(nodes[ii], nodes[jj], R + margin / 2) & usable[ii] & usable[jj]
-    dist = np.full((k, k), np.inf)
-    np.fill_diagonal(dist, 0.0)
-    dist[ii[vis], jj[vis]] = dist[jj[vis], ii[vis]] = np.linalg.norm(nodes[ii] - nodes[jj], axis=1)[vis]
-    nxt = np.tile(np.arange(k), (k, 1))
-    for m in range(k):
-        via = dist[:, m, None] + dist[None, m, :]
-        better = via < dist
-        dist, nxt = np.where(better, via, dist), np.where(better, nxt[:, m, None], nxt)
+    dist, nxt = all_pairs(nodes, ii, jj, vis)
     g = len(goals)
     reach = segments_clear(np.repeat(nodes, g, axis=0), np.tile(goals, (k, 1)), R + margin / 2)
     total = dist[0][:, None] + np.linalg.norm(nodes[:, None] - goals[None], axis=-1)

@@ -12,7 +12,6 @@ does not count: the goal compares the objects' positions (``docs/tasks.md``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict
 from typing import Any
 
 import gymnasium as gym
@@ -22,6 +21,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.planar.draw import AGENT_EDGE, AGENT_FILL, draw_plan
+from gpc.tasks.planar.record import scripted_params
 from gpc.tasks.planar.scene import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ, WORKSPACE
 from gpc.tasks.swap import geometry, render
 from gpc.tasks.swap import record as swap_record
@@ -65,10 +65,7 @@ def scripted_policy(kind: str) -> Any:
 
 
 def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
-    policy = scripted_policy(kind)
-    config = getattr(policy, "config", None)
-    return {"policy": type(policy).__name__, "config": asdict(config) if config is not None else {},
-            "stop_on_success": kind == "expert", "max_steps": max_steps}
+    return scripted_params(scripted_policy(kind), kind, max_steps)
 
 
 def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:

@@ -9,43 +9,24 @@ seed's (or ``options["goal"]``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE
+from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE, ObsConfig
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.render import draw_state
 from gpc.tasks.swap.sim import SwapSim
 
-OBS_TYPES = ("state", "keypoints", "pixels")
 MAX_EPISODE_STEPS = 400
 START_LOW, START_HIGH = 100.0, 412.0  # objects' start centres: room for the agent between each and the walls
 MIN_APART = 140.0  # objects' start centres at least this far apart (px): room for the agent between them
 AGENT_CLEARANCE = 5.0  # the agent starts at least this far (px) from both objects
 
 
-@dataclass(frozen=True)
-class SwapConfig:
-    """What an environment observes."""
-
-    obs_type: str = "state"
-    render_size: int = 96
-
-    def __post_init__(self) -> None:
-        parts = self.obs_type.split("+")
-        bad = [p for p in parts if p not in OBS_TYPES]
-        if bad or len(set(parts)) != len(parts):
-            raise ValueError(f"obs_type {self.obs_type!r}: use one of {', '.join(OBS_TYPES)} or a '+'-joined combination")
-        if self.render_size < 8:
-            raise ValueError(f"render_size {self.render_size}: must be at least 8")
-
-    @property
-    def obs_parts(self) -> tuple[str, ...]:
-        return tuple(self.obs_type.split("+"))
+SwapConfig = ObsConfig  # what a swap environment observes (the goal is the seed's)
 
 
 def initial_scene(seed: int) -> tuple[np.ndarray, np.ndarray]:

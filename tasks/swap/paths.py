@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gpc.tasks.planar.paths import rotate
+from gpc.tasks.planar.paths import all_pairs, rotate
 from gpc.tasks.planar.scene import AGENT_RADIUS, WALL_RADIUS, WALLS, WORKSPACE
 from gpc.tasks.swap.geometry import CUBE_SIDE, SPHERE_RADIUS
 
@@ -77,14 +77,7 @@ def shortest_path(start: np.ndarray, goal: np.ndarray, cube_pose: np.ndarray, sp
     ii, jj = np.triu_indices(k, 1)
     vis = usable[ii] & usable[jj]
     vis[vis] = segments_clear(nodes[ii[vis]], nodes[jj[vis]], cube_pose, sphere_xy, gap)
-    dist = np.full((k, k), np.inf)
-    np.fill_diagonal(dist, 0.0)
-    dist[ii[vis], jj[vis]] = dist[jj[vis], ii[vis]] = np.linalg.norm(nodes[ii] - nodes[jj], axis=1)[vis]
-    nxt = np.tile(np.arange(k), (k, 1))
-    for m in range(k):
-        via = dist[:, m, None] + dist[None, m, :]
-        better = via < dist
-        dist, nxt = np.where(better, via, dist), np.where(better, nxt[:, m, None], nxt)
+    dist, nxt = all_pairs(nodes, ii, jj, vis)
     if not np.isfinite(dist[0, 1]):
         return None
     hops, u = [], 0
