@@ -230,7 +230,8 @@ def _two_object_layout():
 
 def test_a_predictor_of_several_objects_reads_each_pose_and_scores_against_per_episode_goals():
     from gpc.datasets.normalizer import MinMaxNormalizer
-    from gpc.models.rewards.learned import PosePredictor, pose_errors
+    from gpc.models.rewards.learned import PosePredictor
+    from gpc.models.rewards.registration import pose_errors
 
     layout = _two_object_layout()
     config = reward_profile("tiny", layout).config

@@ -32,7 +32,7 @@ from gpc.harness import interrupts
 from gpc.harness.evaluation import EvalConfig, map_groups
 from gpc.harness.files import check_out, write_atomic
 from gpc.harness.ownership import claim
-from gpc.harness.stores import check_stores
+from gpc.harness.stores import check_stores, foreign_files
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import COLLECTORS, Task, check_seeds
 
@@ -137,44 +137,11 @@ def _ours(out: Path) -> None:
     if not _wrote(out):
         raise DataError(f"{out}: is not a store gpc wrote (no gpc_format record); refusing to replace it "
                         "(remove it yourself or choose another --out)")
-    foreign = _foreign(out)
+    foreign = foreign_files(out)
     if foreign:
         shown = ", ".join(str(p.relative_to(out)) for p in foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
         raise DataError(f"{out}: holds files gpc did not write ({shown}); --overwrite would delete them: "
                         "move them out of the store first")
-
-
-_ZARR_META = frozenset({".zgroup", ".zattrs", ".zarray", ".zmetadata", "zarr.json"})
-_META_ARRAYS = frozenset({"episode_ends", "episode_seeds", "episode_scores"})
-
-
-def _foreign(store: Path) -> list[Path]:
-    """The files in a store gpc wrote that are not the Zarr layout gpc writes there (its metadata, the arrays
-    its provenance records under ``data/`` and ``meta/``, their chunks): a user's, which ``--overwrite`` would
-    delete with the store. Folders are judged by the files in them."""
-    keys = store_record(store).get("keys")  # its data may be damaged: --overwrite replaces a damaged store of gpc's
-    arrays = {"data": set(keys) if isinstance(keys, list) else None, "meta": _META_ARRAYS}
-    foreign = []
-    for path in sorted(store.rglob("*")):
-        if path.is_dir() and not path.is_symlink():
-            continue
-        parts = path.relative_to(store).parts
-        if len(parts) <= 2:
-            ours = parts[-1] in _ZARR_META and (len(parts) == 1 or parts[0] in arrays)
-        else:
-            known = arrays.get(parts[0], set())
-            ours = (parts[0] in arrays and (known is None or parts[1] in known)
-                    and ((len(parts) == 3 and parts[2] in _ZARR_META) or _chunk_name(parts[2:])))
-        if not ours:
-            foreign.append(path)
-    return foreign
-
-
-def _chunk_name(parts: tuple[str, ...]) -> bool:
-    """A Zarr chunk's key below its array: ``0.0`` (format 2), ``0/0`` or ``c/0/0`` (format 3), or the
-    ``.partial`` file of a chunk being written."""
-    words = [w for part in parts for w in part.removesuffix(".partial").split(".")]
-    return all(w.isdigit() for w in words[parts[0] == "c":]) and len(words) > (parts[0] == "c")
 
 
 def _wrote(path: Path) -> bool:

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from gpc.datasets.errors import DataError
-from gpc.datasets.store import EpisodeStore
+from gpc.datasets.store import EpisodeStore, store_record
 from gpc.harness.files import check_file_out
 from gpc.harness.video import write_mp4
 from gpc.tasks import DEFAULT_TASK, get_task
@@ -98,3 +98,36 @@ def check_stores(task: Task, paths: Sequence[str | Path], keys: Sequence[str]) -
                 raise DataError(f"{path}: data/{key} frames are {row}, not square RGB (S, S, 3)")
             if want is not None and row != want:
                 raise DataError(f"{path}: data/{key} rows are {row}; task {task.name} stores {want}")
+
+
+_ZARR_META = frozenset({".zgroup", ".zattrs", ".zarray", ".zmetadata", "zarr.json"})
+_META_ARRAYS = frozenset({"episode_ends", "episode_seeds", "episode_scores"})
+
+
+def foreign_files(store: Path) -> list[Path]:
+    """The files in a store gpc wrote that are not the Zarr layout gpc writes there (its metadata, the arrays
+    its provenance records under ``data/`` and ``meta/``, their chunks): a user's, which ``--overwrite`` would
+    delete with the store. Folders are judged by the files in them."""
+    keys = store_record(store).get("keys")  # its data may be damaged: --overwrite replaces a damaged store of gpc's
+    arrays = {"data": set(keys) if isinstance(keys, list) else None, "meta": _META_ARRAYS}
+    foreign = []
+    for path in sorted(store.rglob("*")):
+        if path.is_dir() and not path.is_symlink():
+            continue
+        parts = path.relative_to(store).parts
+        if len(parts) <= 2:
+            ours = parts[-1] in _ZARR_META and (len(parts) == 1 or parts[0] in arrays)
+        else:
+            known = arrays.get(parts[0], set())
+            ours = (parts[0] in arrays and (known is None or parts[1] in known)
+                    and ((len(parts) == 3 and parts[2] in _ZARR_META) or _chunk_name(parts[2:])))
+        if not ours:
+            foreign.append(path)
+    return foreign
+
+
+def _chunk_name(parts: tuple[str, ...]) -> bool:
+    """A Zarr chunk's key below its array: ``0.0`` (format 2), ``0/0`` or ``c/0/0`` (format 3), or the
+    ``.partial`` file of a chunk being written."""
+    words = [w for part in parts for w in part.removesuffix(".partial").split(".")]
+    return all(w.isdigit() for w in words[parts[0] == "c":]) and len(words) > (parts[0] == "c")

@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,7 +41,7 @@ from gpc.datasets.layout import TaskLayout
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.resnet import ResNet18Trunk
-from gpc.models.rewards.registration import PoseReward, RewardConfig, registration
+from gpc.models.rewards.registration import PoseReward, RewardConfig, pose_errors
 from gpc.models.training.config import OptimConfig, Profile, RunConfig
 from gpc.models.training.config_io import PlainConfig
 from gpc.models.training.module import TrainableModule
@@ -256,25 +256,6 @@ class PosePredictor(nn.Module):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, P)`` predicted poses, differentiable."""
         return self.to_pose(self.raw(self.prepare(frames)))
-
-
-def pose_errors(pred: torch.Tensor, true: torch.Tensor, vertices: torch.Tensor | Sequence[torch.Tensor],
-                goal: torch.Tensor | None, sizes: Sequence[int] | None = None) -> dict[str, torch.Tensor]:
-    """``(N, P)`` predicted and true poses -> per-frame errors ``(N,)``, each the mean over the objects (``sizes``:
-    their pose entries; default one object): position px, angle deg (objects with an angle; NaN where none has one),
-    vertex px (mean vertex distance between the two poses), and the registration loss against ``goal`` ``(P,)`` or
-    ``(N, P)`` (true, predicted, absolute error px; left out without a goal)."""
-    sizes = tuple(sizes or (pred.shape[1],))
-    shapes = [vertices] if isinstance(vertices, torch.Tensor) else list(vertices)
-    starts = [sum(sizes[:i]) for i in range(len(sizes))]
-    position = torch.stack([(pred[:, s : s + 2] - true[:, s : s + 2]).norm(dim=1) for s in starts]).mean(dim=0)
-    turns = [torch.remainder(pred[:, s + 2] - true[:, s + 2] + math.pi, 2 * math.pi) - math.pi for s, n in zip(starts, sizes) if n == 3]
-    angle = torch.stack(turns).abs().mean(dim=0) if turns else torch.full_like(position, float("nan"))
-    out = {"position_px": position, "angle_deg": angle * (180.0 / math.pi), "vertex_px": registration(pred, true, shapes, sizes)}
-    if goal is not None:
-        true_reg, pred_reg = registration(true, goal, shapes, sizes), registration(pred, goal, shapes, sizes)
-        out.update(registration_true_px=true_reg, registration_pred_px=pred_reg, registration_abs_err_px=(pred_reg - true_reg).abs())
-    return out
 
 
 class ImageReward(PoseReward):

@@ -19,7 +19,8 @@ import torch
 from gpc.datasets.errors import DataError
 from gpc.datasets.sequence import recorded_held_out
 from gpc.datasets.store import EpisodeStore
-from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule, pose_errors, resize
+from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule, resize
+from gpc.models.rewards.registration import pose_errors
 
 GOAL_KEY = "goal"  # a store's per-step goal, where the task draws one per episode
 

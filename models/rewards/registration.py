@@ -14,6 +14,7 @@ rewards into ``(K,)`` scores. ``RegistrationReward`` reads the pose from predict
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -157,6 +158,25 @@ def layout_registration(a: torch.Tensor, b: torch.Tensor, layout: TaskLayout) ->
     pose = list(layout.pose_dims)
     vertices = [torch.tensor(o.vertices, dtype=a.dtype, device=a.device) for o in layout.objects]
     return registration(a[..., pose], b[..., pose], vertices, [len(o.pose) for o in layout.objects])
+
+
+def pose_errors(pred: torch.Tensor, true: torch.Tensor, vertices: torch.Tensor | Sequence[torch.Tensor],
+                goal: torch.Tensor | None, sizes: Sequence[int] | None = None) -> dict[str, torch.Tensor]:
+    """``(N, P)`` predicted and true poses -> per-frame errors ``(N,)``, each the mean over the objects (``sizes``:
+    their pose entries; default one object): position px, angle deg (objects with an angle; NaN where none has one),
+    vertex px (mean vertex distance between the two poses), and the registration loss against ``goal`` ``(P,)`` or
+    ``(N, P)`` (true, predicted, absolute error px; left out without a goal)."""
+    sizes = tuple(sizes or (pred.shape[1],))
+    shapes = [vertices] if isinstance(vertices, torch.Tensor) else list(vertices)
+    starts = [sum(sizes[:i]) for i in range(len(sizes))]
+    position = torch.stack([(pred[:, s : s + 2] - true[:, s : s + 2]).norm(dim=1) for s in starts]).mean(dim=0)
+    turns = [torch.remainder(pred[:, s + 2] - true[:, s + 2] + math.pi, 2 * math.pi) - math.pi for s, n in zip(starts, sizes) if n == 3]
+    angle = torch.stack(turns).abs().mean(dim=0) if turns else torch.full_like(position, float("nan"))
+    out = {"position_px": position, "angle_deg": angle * (180.0 / math.pi), "vertex_px": registration(pred, true, shapes, sizes)}
+    if goal is not None:
+        true_reg, pred_reg = registration(true, goal, shapes, sizes), registration(pred, goal, shapes, sizes)
+        out.update(registration_true_px=true_reg, registration_pred_px=pred_reg, registration_abs_err_px=(pred_reg - true_reg).abs())
+    return out
 
 
 class RegistrationReward(PoseReward):
