@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pymunk
@@ -91,3 +92,8 @@ class ObsConfig:
     @property
     def obs_parts(self) -> tuple[str, ...]:
         return tuple(self.obs_type.split("+"))
+
+
+def episode_seed(env: Any, seed: int | None) -> int:
+    """The seed an episode is drawn from: the one given, else one from the Gymnasium env's own stream (``np_random``)."""
+    return int(env.np_random.integers(0, 2**31 - 1)) if seed is None else seed

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gpc.tasks.planar.scene import ObsConfig
+from gpc.tasks.planar.scene import ObsConfig, episode_seed
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.render import draw_scene
 from gpc.tasks.pusht.sim import PushTSim
@@ -100,9 +100,7 @@ class PushTEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = options or {}
-        if seed is None:
-            seed = int(self.np_random.integers(0, 2**31 - 1))
-        self.seed_value = seed
+        seed = self.seed_value = episode_seed(self, seed)
         self.goal_pose = np.asarray(
             options.get("goal_pose", random_goal(seed) if self.config.goal == "random" else geometry.GOAL_POSE),
             dtype=np.float64,

@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE, ObsConfig
+from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE, ObsConfig, episode_seed
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.render import draw_state
 from gpc.tasks.swap.sim import SwapSim
@@ -86,9 +86,7 @@ class SwapEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = options or {}
-        if seed is None:
-            seed = int(self.np_random.integers(0, 2**31 - 1))
-        self.seed_value = seed
+        seed = self.seed_value = episode_seed(self, seed)
         start, goal = initial_scene(seed)
         self.goal = np.asarray(options.get("goal", goal), dtype=np.float64).copy()
         if self.goal.shape != (4,):
