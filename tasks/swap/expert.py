@@ -6,8 +6,9 @@ the contact's lever. Pushes are closed-loop: each step the target is set behind 
 target and a lead ahead, so the PD-tracked disc (critically damped: it never overshoots its target) stops the
 object on its target. The cube is steered: the lever turns the pushed face until the push points at the target.
 The last pixels are pushed slowly along the cube's own axes, which is what its coverage measures. Between pushes the
-disc walks around both objects (``paths.shortest_path``). Order, parking spot, speeds, gaps and waypoints are drawn
-from the seed, so demonstrations vary; the caller's scene is only read.
+disc walks around both objects (``paths.shortest_path``). The parking spot follows from the starts (a policy must
+be able to tell it from what it sees); speeds, gaps and waypoints are drawn from the seed, so demonstrations vary;
+the caller's scene is only read.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class ExpertConfig:
     steer_gain: float = 40.0  # lever (px) per rad of the cube's push direction off its target
     max_lever: float = 16.0  # largest lever (px) of a steering push, off the face's middle
     park_clearance: float = 110.0  # a parking spot keeps this far (px) from the other moves' straight paths
-    cube_first: float = 0.5  # the chance that the cube is parked (else the sphere)
+    cube_first: float = 0.0  # the chance that the cube is parked (else the sphere); 0: the plan follows from the scene
 
     def __post_init__(self) -> None:
         for name in ("approach_speed", "push_speed", "fine_speed", "staging_gap"):
@@ -68,31 +69,29 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(ap - t[..., None] * ab, axis=-1)
 
 
-def parking_plan(rng: np.random.Generator, cube: np.ndarray, sphere: np.ndarray, clearance_px: float,
-                 cube_first: float) -> tuple[int, np.ndarray]:
-    """Which object to park and where: a random spot far from the straight paths of the three moves, short ones preferred.
+_GRID = np.stack(np.meshgrid(np.arange(PARK_LOW, PARK_HIGH + 1e-9, 7.0), np.arange(PARK_LOW, PARK_HIGH + 1e-9, 7.0)),
+                 axis=-1).reshape(-1, 2)  # the parking spots considered, a fixed grid: the plan is a function of the scene
+
+
+def parking_plan(cube: np.ndarray, sphere: np.ndarray, clearance_px: float, cube_first: float,
+                 rng: np.random.Generator | None = None) -> tuple[int, np.ndarray]:
+    """Which object to park and where: the spot clearing the three moves' straight paths by ``clearance_px`` (or as
+    near to it as the workspace allows) with the shortest detour.
 
     Parking the sphere at P: sphere B->P (cube at A), cube A->B (sphere at P), sphere P->A (cube at B); parking the
-    cube mirrors it. Where no spot keeps ``clearance_px``, the requirement is relaxed step by step.
+    cube mirrors it. The spot is a function of the two starts alone, which every observation carries as the goal:
+    a policy that sees the scene can tell where the parked object is going (a spot drawn at random could not be
+    learned from the demonstrations). The sphere is parked (its pushes need no steering) unless ``rng`` draws the
+    cube with chance ``cube_first``.
     """
     a, b = np.asarray(cube, dtype=np.float64), np.asarray(sphere, dtype=np.float64)
-    spots = rng.uniform(PARK_LOW, PARK_HIGH, (400, 2))
-    first = CUBE if rng.random() < cube_first else SPHERE
-    for need in np.arange(clearance_px, 0.0, -10.0):
-        options = []
-        for obj in (first, 1 - first):
-            start, stay = (a, b) if obj == CUBE else (b, a)  # the parked object's start, the other's
-            # the parked object start -> P past the other; the other stay -> start past P; the parked P -> stay past it
-            gap = np.minimum.reduce([segment_distance(stay, start, spots), segment_distance(spots, stay, start),
-                                     segment_distance(start, spots, stay)])
-            ok = gap >= need
-            if ok.any():
-                travel = np.linalg.norm(spots - start, axis=1) + np.linalg.norm(spots - stay, axis=1)
-                idx = np.flatnonzero(ok & (travel <= travel[ok].min() * 1.2))
-                options.append((obj, spots[int(rng.choice(idx))]))
-        if options:
-            return options[0]
-    raise AssertionError("some parking spot always exists")  # need reaches 0, where every spot qualifies
+    parked = CUBE if rng is not None and rng.random() < cube_first else SPHERE
+    start, stay = (a, b) if parked == CUBE else (b, a)  # the parked object's start, the other's
+    gap = np.minimum.reduce([segment_distance(stay, start, _GRID), segment_distance(_GRID, stay, start),
+                             segment_distance(start, _GRID, stay)])
+    travel = np.linalg.norm(_GRID - start, axis=1) + np.linalg.norm(_GRID - stay, axis=1)
+    score = np.minimum(gap, clearance_px) - 0.05 * travel  # clearance first (1 px of it is worth 20 px of travel)
+    return parked, _GRID[int(np.argmax(score))].copy()
 
 
 @dataclass
@@ -171,7 +170,7 @@ class SwapExpert:
         if self._carrot is None or np.linalg.norm(self._carrot - agent) > 3 * cfg.max_lead:
             self._carrot, self._push, self._queue = agent.copy(), None, []
         if self._phases is None:
-            parked, spot = parking_plan(self._rng, cube_pose[:2], sphere, cfg.park_clearance, cfg.cube_first)
+            parked, spot = parking_plan(cube_pose[:2], sphere, cfg.park_clearance, cfg.cube_first, self._rng)
             targets = {CUBE: goal[0:2], SPHERE: goal[2:4]}
             self._phases = [(parked, spot, cfg.park_tolerance), (1 - parked, targets[1 - parked], cfg.place_tolerance),
                             (parked, targets[parked], cfg.place_tolerance)]
