@@ -11,7 +11,7 @@ import gpc.tasks.swap  # noqa: F401  (registers gpc/Swap-v0)
 from gpc.tasks.planar.draw import AGENT_FILL
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.env import MIN_APART, START_HIGH, START_LOW, SwapEnv, initial_scene
-from gpc.tasks.swap.expert import ExpertConfig, SwapExpert
+from gpc.tasks.swap.expert import CUBE, PARK_HIGH, PARK_LOW, SPHERE, ExpertConfig, SwapExpert, parking_plan, segment_distance
 from gpc.tasks.swap.explore import ExploreConfig, ExplorePolicy, evaluate_explore
 from gpc.tasks.swap.record import RecordConfig, episode_scores, observe, record_episode
 from gpc.tasks.swap.render import CUBE_EDGE, CUBE_FILL, SPHERE_EDGE, SPHERE_FILL, TARGET_WIDTH, draw_state
@@ -204,6 +204,22 @@ def test_expert_solves_seeds_and_varies_by_seed() -> None:
     assert not np.allclose(a, np.array(b))
     with pytest.raises(ValueError):
         ExpertConfig(push_speed=(5.0, 2.0))
+
+
+def test_parking_spot_follows_from_the_starts() -> None:
+    """What a policy sees (the goal is both starts) tells where the parked object goes: no seed decides it."""
+    cube, sphere = np.array([150.0, 200.0]), np.array([330.0, 260.0])
+    parked, spot = parking_plan(cube, sphere, 110.0, 0.0, np.random.default_rng(1))
+    assert parked == SPHERE
+    for seed in (2, 3):
+        again = parking_plan(cube, sphere, 110.0, 0.0, np.random.default_rng(seed))
+        assert again[0] == SPHERE and np.array_equal(again[1], spot)
+    # clear of the three moves' straight paths by the clearance asked for, inside the parking box
+    assert segment_distance(spot, cube, sphere) >= 110.0 and segment_distance(cube, sphere, spot) >= 110.0
+    assert np.all((spot >= PARK_LOW) & (spot <= PARK_HIGH))
+    moved = parking_plan(cube + 3.0, sphere, 110.0, 0.0)[1]  # a nearby scene parks nearby
+    assert np.linalg.norm(moved - spot) < 20.0
+    assert parking_plan(cube, sphere, 110.0, 1.0, np.random.default_rng(1))[0] == CUBE  # cube_first=1 parks the cube
 
 
 def test_exploration_touches_both_objects_and_pushes_them_together() -> None:
