@@ -145,7 +145,8 @@ else ifeq ($(PROFILE),paper)
   VWM_ONPOLICY := --profile paper --max-steps 5000
   VPROBE_ARGS := --seeds 200000:200050 --max-steps 300 --batch 50
 else ifeq ($(PROFILE),cpu)
-  EXPERT_EPISODES := 200
+  # Swap's three-phase demonstrations: 400 (its state policy overfit 200: validation loss rising from step 2,200 of 3,000).
+  EXPERT_EPISODES := $(if $(filter swap,$(TASK)),400,200)
   EXPLORE_EPISODES := 200
   POLICY := --profile cpu --max-steps 3000
   WM1 := --profile cpu --max-steps 6000

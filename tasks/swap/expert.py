@@ -38,6 +38,7 @@ class ExpertConfig:
     fine_distance: float = 12.0  # below this distance (px) from its target an object is pushed slowly, along axes
     place_tolerance: float = 1.2  # px: an object is placed when its error (the cube's per axis) is below this
     park_tolerance: float = 15.0  # px: a parked object is close enough to its parking spot
+    park_done: float = 85.0  # px: ... or far enough from the other object's straight path to its target
     staging_gap: tuple[float, float] = (8.0, 14.0)  # a push starts this far (px) behind first contact
     margin: float = 10.0  # clearance (px) of approach paths from the objects, beyond the disc's radius
     max_lead: float = 36.0  # the target never runs further than this ahead of the disc (px)
@@ -51,7 +52,7 @@ class ExpertConfig:
             lo, hi = getattr(self, name)
             if not 0.0 < lo <= hi <= 25.0:
                 raise ValueError(f"{name} {getattr(self, name)}: need 0 < low <= high <= 25")
-        for name in ("fine_distance", "place_tolerance", "park_tolerance", "margin", "max_lead", "park_clearance"):
+        for name in ("fine_distance", "place_tolerance", "park_tolerance", "park_done", "margin", "max_lead", "park_clearance"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} {getattr(self, name)}: must be positive")
         if self.max_lead < self.approach_speed[1] or self.staging_gap[0] < self.margin / 2:
@@ -120,6 +121,7 @@ class SwapExpert:
         self._carrot: np.ndarray | None = None
         self._phases: list[tuple[int, np.ndarray, float]] | None = None  # (object, target, tolerance)
         self._push: _Push | None = None
+        self._parking: tuple[int, np.ndarray, float] | None = None  # the plan's parking move (none in set_moves' plans)
         self._path_s = 0.0
         self._queue: list[np.ndarray] = []
         self._speed = self._draw(self.config.approach_speed)
@@ -172,7 +174,8 @@ class SwapExpert:
         if self._phases is None:
             parked, spot = parking_plan(cube_pose[:2], sphere, cfg.park_clearance, cfg.cube_first, self._rng)
             targets = {CUBE: goal[0:2], SPHERE: goal[2:4]}
-            self._phases = [(parked, spot, cfg.park_tolerance), (1 - parked, targets[1 - parked], cfg.place_tolerance),
+            self._parking = (parked, spot, cfg.park_tolerance)
+            self._phases = [self._parking, (1 - parked, targets[1 - parked], cfg.place_tolerance),
                             (parked, targets[parked], cfg.place_tolerance)]
         if self._queue:
             target = self._queue.pop(0)
@@ -189,7 +192,8 @@ class SwapExpert:
         assert self._phases is not None
         while self._phases:
             obj, target, tol = self._phases[0]
-            if self._error(obj, cube_pose, sphere, target) > tol:
+            if self._error(obj, cube_pose, sphere, target) > tol and not (
+                    self._phases[0] is self._parking and self._out_of_the_way(obj, cube_pose, sphere, goal)):
                 return obj, target, tol
             self._phases.pop(0)
             self._push = None
@@ -200,6 +204,13 @@ class SwapExpert:
             self._phases.append((worst, goal[0:2] if worst == CUBE else goal[2:4], tol))
             return self._phases[0]
         return None
+
+    def _out_of_the_way(self, obj: int, cube_pose: np.ndarray, sphere: np.ndarray, goal: np.ndarray) -> bool:
+        """Whether the parked ``obj`` is ``park_done`` px from the other object's straight path to its target: the
+        parking ends there (or at the spot), a condition a policy reads from what it sees, overshoot included."""
+        pos, other = (cube_pose[:2], sphere) if obj == CUBE else (sphere, cube_pose[:2])
+        other_target = goal[2:4] if obj == CUBE else goal[0:2]
+        return float(segment_distance(pos, other, other_target)) >= self.config.park_done
 
     # ------------------------------------------------------------------ control
     def _control(self, agent: np.ndarray, cube_pose: np.ndarray, sphere: np.ndarray, goal: np.ndarray) -> np.ndarray:
