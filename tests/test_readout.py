@@ -82,3 +82,4 @@ def test_figures_and_report_give_every_objects_position_ratio():
     ratio = f"(ratio {sphere['final_moving']['ratio']['object_units']:.2f})"
     assert f"{len(STATES)} windows where the sphere moves: position error" in md and ratio in md
     assert f"{len(STATES)} windows where the cube moves: position error" in md and "Agent visible in" in md
+    assert "| cube units | cube deg | cube vertices | agent visible |" in md  # the per-step columns: the first object

@@ -170,7 +170,10 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
     baseline; then each object's errors on the final frame of the windows where it moves."""
     ro = report.get("readout")
     keys = [k for k in ("object_units", "object_deg", "object_vertex_units") if ro and k in ro["per_step"]["model"]]
-    names = {"object_units": "object units", "object_deg": "object deg", "object_vertex_units": "object vertices"}
+    objects = (ro.get("objects") or {"object": ro}) if ro else {}
+    several = len(objects) > 1
+    first = next(iter(objects)) if several else "object"  # the per-step columns are the first object's
+    names = {"object_units": f"{first} units", "object_deg": f"{first} deg", "object_vertex_units": f"{first} vertices"}
     head = ["step (actions)", "SSIM", "PSNR dB"] + ([names[k] for k in keys] + ["agent visible"] if ro else [])
     lines = [
         f"## {title}", "",
@@ -192,8 +195,6 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
         lines.append("| " + " | ".join(cells) + " |")
     if not ro:
         return "\n".join(lines) + "\n"
-    objects = ro.get("objects") or {"object": ro}
-    several = len(objects) > 1
     agent = (f"agent visible in {ro['agent_visible']['model']:.0%} of predicted frames "
              f"({ro['agent_visible']['true']:.0%} of recorded ones).")
     if not several:  # one sentence, as it always read for one object
