@@ -17,6 +17,9 @@ POLICY_OBS.pusht := keypoints
 TITLE.pusht := Push-T
 TITLE.swap := Cube & Sphere Swapping
 PAPER_STATE.pusht := --paper pusht-state
+# Per task, vision: the paper's vision row (`gpc compare --paper`, the task's PAPER) where it has one.
+PAPER_VISION.pusht := --paper pusht-vision
+PAPER_VISION.swap := --paper swap-vision
 POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
 TITLE := $(or $(TITLE.$(TASK)),$(TASK))
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
@@ -42,8 +45,8 @@ ifneq ($(GOAL),fixed)
   endif
 endif
 ifneq ($(TASK),pusht)
-  ifneq ($(filter %vision reproduce-pusht,$(MAKECMDGOALS)),)
-    $(error TASK=$(TASK): the vision pipeline and reproduce-pusht run Push-T only so far; use `make reproduce TASK=$(TASK)`)
+  ifneq ($(filter reproduce-pusht reproduce-pusht-vision,$(MAKECMDGOALS)),)
+    $(error TASK=$(TASK): reproduce-pusht and reproduce-pusht-vision are Push-T's spellings; use `make reproduce TASK=$(TASK)` or `make reproduce-vision TASK=$(TASK)`)
   endif
 endif
 ifeq ($(GOAL),random)
@@ -132,7 +135,7 @@ else ifeq ($(PROFILE),paper)
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
   VPOLICY := --profile paper
-  VPOLICY_DATA := $(HUMAN_DATA)
+  VPOLICY_DATA := $(if $(filter pusht,$(TASK)),$(HUMAN_DATA),$(RUN_DIR)/expert.zarr)
   VWM1 := --profile paper
   VWM2 := --profile paper
   VDISTILL := --profile cpu
@@ -167,7 +170,7 @@ else ifeq ($(PROFILE),cpu)
   # GPC-OPT's own episodes and distilled to one step, 100 test seeds; the image policy 9,000 steps (0.55 s each on
   # 2 cores with native bf16, about 82 minutes; 1.0 s on AVX2).
   VPOLICY := --profile cpu --max-steps 9000
-  VPOLICY_DATA := $(HUMAN_DATA)
+  VPOLICY_DATA := $(if $(filter pusht,$(TASK)),$(HUMAN_DATA),$(RUN_DIR)/expert.zarr)
   VWM1 := --profile cpu --max-steps 38000 --precision $(VWM_PRECISION) --val-every 5000
   VWM2 := --profile cpu --max-steps 1000 --precision $(VWM_PRECISION) --val-every 1000
   VDISTILL := --profile cpu
@@ -189,9 +192,10 @@ endif
 help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
-	@echo "make reproduce-pusht-vision   the same for image observations (fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
-	@echo "make restore-vision    put the vision checkpoints kept in artifacts/ where their stages look (then go on)"
-	@echo "make keep-vision       export the finished vision stages (and an unfinished training's state) and their results into artifacts/"
+	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
+	@echo "make reproduce-pusht-vision   the same for TASK=pusht (the default)"
+	@echo "make restore-vision    put a task's vision checkpoints kept in artifacts/TASK-PROFILE/ where their stages look (then go on)"
+	@echo "make keep-vision       export a task's finished vision stages (and an unfinished training's state) and their results into artifacts/TASK-PROFILE/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
 	@echo "make test              lint, type-check and run the whole test suite (as CI does)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
@@ -339,35 +343,35 @@ VRESULTS := $(VRESULTS)$(if $(filter-out 32-true,$(VPRECISION)),-$(VPRECISION))
 # (EXPLORE=0 retrains only the world model): one BC and one ceiling per profile and goal.
 VSHARED := $(if $(filter 0,$(EXPLORE)),results/$(TASK)-$(PROFILE)$(GOAL_TAG),$(RESULTS))-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
-VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/pusht_vision.md,$(VRESULTS)/pusht_vision.md)
+VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/$(TASK)_vision.md,$(VRESULTS)/$(TASK)_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)
 
 $(RUN_DIR)/vpolicy.done: $(VPOLICY_DEPS) | $(STAMP)
 	if [ -f $(VPOLICY_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train policy --dataset $(VPOLICY_DATA) --obs image $(VPOLICY) --seed 0 --out $(RUN_DIR)/vpolicy $$resume
+	$(BIN)/gpc train policy --task $(TASK) --dataset $(VPOLICY_DATA) --obs image $(VPOLICY) --seed 0 --out $(RUN_DIR)/vpolicy $$resume
 	touch $@
 
 $(VWM_RUN)-phase1.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	if [ -f $(VWM_RUN)-phase1/checkpoints/last.ckpt ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(VWM_RUN)-phase1 $$resume
+	$(BIN)/gpc train world-model --task $(TASK) --obs image --phase 1 $(WM_DATA) $(VWM1) --seed 0 --out $(VWM_RUN)-phase1 $$resume
 	touch $@
 
 $(VWM_RUN)-phase2.done: $(VWM_RUN)-phase1.done
 	if [ -f $(VWM_CKPT) ]; then resume=--resume; else resume="--init $(VWM_RUN)-phase1/checkpoints/last.ckpt"; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) $(VWM2) --seed 0 --out $(VWM_RUN)-phase2 $$resume
+	$(BIN)/gpc train world-model --task $(TASK) --obs image --phase 2 $(WM_DATA) $(VWM2) --seed 0 --out $(VWM_RUN)-phase2 $$resume
 	$(BIN)/gpc eval world-model $(VWM_CKPT) $(WM_DATA)
 	touch $@
 
 $(VWM_RUN)-1step.done: $(VWM_RUN)-phase2.done
 	if [ -f $(VSTUDENT_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --distill $(VWM_CKPT) --sampler-steps 1 $(WM_DATA) $(VDISTILL) --seed 0 \
+	$(BIN)/gpc train world-model --task $(TASK) --distill $(VWM_CKPT) --sampler-steps 1 $(WM_DATA) $(VDISTILL) --seed 0 \
 	  --out $(VWM_RUN)-1step $$resume
 	$(BIN)/gpc eval world-model $(VSTUDENT_CKPT) $(WM_DATA)
 	touch $@
 
 $(RUN_DIR)/reward.done: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 	if [ -f $(REWARD_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train reward --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr $(VREWARD) --seed 0 \
+	$(BIN)/gpc train reward --task $(TASK) --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr $(VREWARD) --seed 0 \
 	  --out $(RUN_DIR)/reward $$resume
 	touch $@
 
@@ -383,13 +387,13 @@ $(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RU
 
 $(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done
 	if [ -f $(VONPOLICY_CKPT) ]; then resume=--resume; else resume="--init $(VWM_CKPT)"; fi; \
-	$(BIN)/gpc train world-model --obs image --phase 2 $(WM_DATA) --dataset $(VRECORDED) $(VWM_ONPOLICY) --seed 0 \
+	$(BIN)/gpc train world-model --task $(TASK) --obs image --phase 2 $(WM_DATA) --dataset $(VRECORDED) $(VWM_ONPOLICY) --seed 0 \
 	  --out $(VWM_RUN)-onpolicy $$resume
 	touch $@
 
 $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
 	if [ -f $(VONPOLICY_STUDENT_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train world-model --distill $(VONPOLICY_CKPT) --sampler-steps 1 $(WM_DATA) --dataset $(VRECORDED) $(VDISTILL) \
+	$(BIN)/gpc train world-model --task $(TASK) --distill $(VONPOLICY_CKPT) --sampler-steps 1 $(WM_DATA) --dataset $(VRECORDED) $(VDISTILL) \
 	  --seed 0 --out $(VWM_RUN)-onpolicy-1step $$resume
 	$(BIN)/gpc eval world-model $(VONPOLICY_STUDENT_CKPT) $(WM_DATA) --dataset $(VRECORDED)
 	touch $@
@@ -403,13 +407,15 @@ $(eval $(call eval_rule,$(VCEILING),$(VSHARED),$(RUN_DIR)/vpolicy.done,$(VPOLICY
 
 $(VTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/summary.json) $(VSHARED)/$(VCEILING)/summary.json
 	$(BIN)/gpc compare $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)) $(VSHARED)/$(VCEILING) --baseline $(VSHARED)/bc \
-	  --ceiling $(VSHARED)/$(VCEILING) --paper pusht-vision --out $@ \
-	  --title "Vision Push-T, PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC ($(VWM_PLAN) world model)"
+	  --ceiling $(VSHARED)/$(VCEILING) $(PAPER_VISION.$(TASK)) --out $@ \
+	  --title "Vision $(TITLE), PROFILE=$(PROFILE), seeds $(word 2,$(VEVAL)): planners against BC ($(VWM_PLAN) world model)"
 
-reproduce-pusht-vision: $(VTABLE)
+reproduce-vision: $(VTABLE)
 	@cat $(VTABLE)
 
-# restore-vision: the trained vision checkpoints kept in git (artifacts/pusht-$(PROFILE)/, artifacts/README.md) put where
+reproduce-pusht-vision: reproduce-vision
+
+# restore-vision: the trained vision checkpoints kept in git (artifacts/$(TASK)-$(PROFILE)/, artifacts/README.md) put where
 # their stages look, so a machine that did not train them goes on from there: NAME.ckpt (a `gpc export`) is a finished
 # stage, marked done; NAME.resume.ckpt (Lightning's whole state) a training that resumes. The evaluations kept with them
 # (results/NAME/: finished, or the groups a stopped one saved) come back after them, so make finds the finished ones up

@@ -94,14 +94,33 @@ class ActionBox:
 
 
 @dataclass(frozen=True)
+class ObjectLook:
+    """How the renderer draws one object: what a colour readout of frames looks for.
+
+    The readout reads an object's angle from its drawn shape: with ``symmetry`` 1 the angle of its
+    principal axis oriented by its skew; a shape that looks the same turned by ``2 pi / n``
+    (``symmetry`` n, a square's 4) has its angle read, and compared, modulo that turn.
+    """
+
+    colours: tuple[tuple[int, int, int], ...]  # RGB it is drawn in (pick ones no other part of a frame uses)
+    angle_offset: float = 0.0  # its angle = the angle its drawn shape reads as + this (radians)
+    symmetry: int = 1  # n-fold rotational symmetry of its drawn shape
+    tolerance: float = 40.0  # RGB distance (0..255) within which a pixel is the object's (tighter where look-alikes are drawn)
+
+    def __post_init__(self) -> None:
+        if not self.colours or self.symmetry < 1 or self.tolerance <= 0:
+            raise ValueError(f"object look {self.colours}: need a colour, symmetry {self.symmetry} >= 1, tolerance "
+                             f"{self.tolerance} > 0")
+
+
+@dataclass(frozen=True)
 class FrameLayout:
-    """How a rendered frame maps to world coordinates, and how it draws the agent and the object."""
+    """How a rendered frame maps to world coordinates, and how it draws the agent and the objects."""
 
     extent: tuple[float, float]  # world coordinate at the frame's first and last pixel edge (x along columns, y along rows)
     marker_size: float  # the agent's drawn radius (world units): the size of an action drawn into a frame
-    object_colours: tuple[tuple[int, int, int], ...] = ()  # RGB of the object, for colour readouts
+    objects: tuple[ObjectLook, ...] = ()  # how each object of the layout is drawn (in its order), for colour readouts
     agent_colours: tuple[tuple[int, int, int], ...] = ()  # RGB of the agent
-    angle_offset: float = 0.0  # object angle = angle of its longest principal axis + this (radians)
 
     @property
     def span(self) -> float:
@@ -114,8 +133,8 @@ class TaskLayout:
     """One task's data schema: the name checkpoints record, and the parts above.
 
     ``objects``: every object the task is about, in the order the goal (and a ``goal`` observation) lays
-    them out. Components that read a single object's pose (a world model's object-frame features, the
-    colour readout of frames) read the first.
+    them out. Components that read a single object's pose (a world model's object-frame features) read
+    the first.
     """
 
     name: str
@@ -140,6 +159,8 @@ class TaskLayout:
                 raise ValueError(f"object {obj.name}: angle entry {obj.angle} is not one of angle_dims {self.state.angle_dims}")
         if len(set(self.pose_dims)) != len(self.pose_dims):
             raise ValueError(f"task {self.name}: objects share pose entries {self.pose_dims}")
+        if self.frame is not None and self.frame.objects and len(self.frame.objects) != len(self.objects):
+            raise ValueError(f"task {self.name}: the frame draws {len(self.frame.objects)} objects, the layout has {len(self.objects)}")
         if self.state.action_targets and len(self.state.action_targets) != self.action.dim:
             raise ValueError(f"action_targets {self.state.action_targets}: need one per action entry ({self.action.dim})")
 

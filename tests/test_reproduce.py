@@ -29,6 +29,39 @@ def assert_table_is_what_was_measured(table: dict, md: str, runs: list[Path]) ->
         assert f"| {row['label']} | " in md and f"{row['score']:.3f}" in md
 
 
+def run_vision_smoke(args: list[str], tmp_path: Path, task: str) -> tuple[Path, Path, Path]:
+    """Run a task's vision smoke pipeline (``args``: the make command, RUN_DIR and RESULTS under ``tmp_path``) and check
+    its table and its chain of models; returns (the planners' results, the shared BC and ceiling results, the runs)."""
+    vision = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
+    # the default model (VWM_PLAN=onpolicy) has its own rows; BC and the ceiling read none, so every model's table shares them
+    vres, shared, runs = tmp_path / "results-vision-onpolicy", tmp_path / "results-vision", tmp_path / "runs"
+    table = json.loads((vres / f"{task}_vision.json").read_text())
+    assert table["task"] == task and [r["label"] for r in table["rows"]] == ["bc", "rank K=3", "opt M=2", "gt-sim K=3"]
+    assert_table_is_what_was_measured(table, (vres / f"{task}_vision.md").read_text(),
+                                      [shared / "bc", vres / "vrank-K3", vres / "vopt-M2", shared / "vgt-sim-K3"])
+    assert "gap closed" in (vres / f"{task}_vision.md").read_text()
+    for stage in ("vpolicy", "wm-visual-phase1", "reward"):  # every stage trained for this task
+        assert json.loads((runs / stage / "run.json").read_text())["config"]["task"] == task
+    phase2 = json.loads((runs / "wm-visual-phase2" / "run.json").read_text())
+    assert phase2["init"] == str(runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt")  # one schedule: no restarts
+    student = json.loads((runs / "wm-visual-1step" / "run.json").read_text())
+    assert student["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt")
+    assert student["config"]["distill_from"] == student["init"] and student["config"]["dynamics"]["sampler"]["steps"] == 1
+    # the on-policy model: GPC-OPT's own episodes recorded with the student, the teacher fine-tuned on them too, then
+    # distilled again; that model plans
+    recorded = runs / "wm-visual-opt-episodes.zarr"
+    assert EpisodeStore.open(recorded).attrs["collector"]["world_model"] == str(
+        runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")
+    tuned = json.loads((runs / "wm-visual-onpolicy" / "run.json").read_text())
+    assert tuned["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") and str(recorded) in tuned["datasets"]
+    assert json.loads((runs / "wm-visual-onpolicy-1step" / "run.json").read_text())["init"] == str(
+        runs / "wm-visual-onpolicy" / "checkpoints" / "last.ckpt")
+    planned = json.loads((vres / "vopt-M2" / "summary.json").read_text())["run"]["controller"]
+    assert planned["world_model"] == str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt")
+    return vres, shared, runs
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
@@ -60,32 +93,7 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in stamps if "rank-K4" not in str(p)} == {
         p: t for p, t in stamps.items() if "rank-K4" not in str(p)}
     vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
-    vision = subprocess.run(vargs, cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
-    # the default model (VWM_PLAN=onpolicy) has its own rows; BC and the ceiling read none, so every model's table shares them
-    vres, shared = tmp_path / "results-vision-onpolicy", tmp_path / "results-vision"
-    table = json.loads((vres / "pusht_vision.json").read_text())
-    assert [r["label"] for r in table["rows"]] == ["bc", "rank K=3", "opt M=2", "gt-sim K=3"]
-    assert_table_is_what_was_measured(table, (vres / "pusht_vision.md").read_text(),
-                                      [shared / "bc", vres / "vrank-K3", vres / "vopt-M2", shared / "vgt-sim-K3"])
-    assert "gap closed" in (vres / "pusht_vision.md").read_text()
-    runs = tmp_path / "runs"
-    phase2 = json.loads((runs / "wm-visual-phase2" / "run.json").read_text())
-    assert phase2["init"] == str(runs / "wm-visual-phase1" / "checkpoints" / "last.ckpt")  # one schedule: no restarts
-    student = json.loads((runs / "wm-visual-1step" / "run.json").read_text())
-    assert student["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt")
-    assert student["config"]["distill_from"] == student["init"] and student["config"]["dynamics"]["sampler"]["steps"] == 1
-    # the on-policy model: GPC-OPT's own episodes recorded with the student, the teacher fine-tuned on them too, then
-    # distilled again; that model plans
-    recorded = runs / "wm-visual-opt-episodes.zarr"
-    assert EpisodeStore.open(recorded).attrs["collector"]["world_model"] == str(
-        runs / "wm-visual-1step" / "checkpoints" / "last.ckpt")
-    tuned = json.loads((runs / "wm-visual-onpolicy" / "run.json").read_text())
-    assert tuned["init"] == str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") and str(recorded) in tuned["datasets"]
-    assert json.loads((runs / "wm-visual-onpolicy-1step" / "run.json").read_text())["init"] == str(
-        runs / "wm-visual-onpolicy" / "checkpoints" / "last.ckpt")
-    planned = json.loads((vres / "vopt-M2" / "summary.json").read_text())["run"]["controller"]
-    assert planned["world_model"] == str(runs / "wm-visual-onpolicy-1step" / "checkpoints" / "last.ckpt")
+    vres, shared, runs = run_vision_smoke(vargs, tmp_path, "pusht")
     plain = subprocess.run(vargs + ["VWM_PLAN=student", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert plain.returncode == 0 and "--world-model " + str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt") in plain.stdout
     assert str(shared / "vopt-M2") in plain.stdout and "--planner gt-sim" not in plain.stdout  # the ceiling is shared

@@ -279,7 +279,7 @@ def test_pose_figures_measure_what_a_planner_reads(phase2, store, monkeypatch):
 def test_readout_reads_the_block_pose_from_rendered_frames():
     states = np.array([[100.0, 100.0, 250.0, 260.0, a] for a in (0.3, 1.7, 3.5, 5.9)])
     frames = np.stack([draw_state(s, size=96) for s in states])
-    pose = ColourReadout.from_layout(LAYOUT).object_pose(frames)
+    pose = ColourReadout.from_layout(LAYOUT).poses(frames)[:, 0]  # the T, the task's one object
     cy = (3600 * 15 + 2700 * 75) / 6300  # the T's centroid in its body frame is (0, cy)
     centre = states[:, 2:4] + np.stack([-np.sin(states[:, 4]), np.cos(states[:, 4])], axis=1) * cy
     assert np.abs(pose[:, :2] - centre).max() < 3.0
@@ -289,11 +289,11 @@ def test_readout_reads_the_block_pose_from_rendered_frames():
     # Its vertices sit about the centroid it reads: placed at the read pose they land on the T's true vertices.
     from gpc.tasks.pusht.geometry import tee_vertices, to_world
 
-    read = to_world(readout.pose_vertices, pose)
+    read = to_world(readout.outline(0), pose)
     assert np.abs(read - tee_vertices(states[:, 2:5]).reshape(len(states), 8, 2)).max() < 4.0
     assert (readout.agent_area(frames) > 20).all()  # the agent's disc, about 5 px across at 96 px
     empty = np.full_like(frames[:1], 255)
-    assert readout.agent_area(empty)[0] == 0 and np.isnan(readout.object_pose(empty)).all()
+    assert readout.agent_area(empty)[0] == 0 and np.isnan(readout.poses(empty)).all()
 
 
 def test_bad_inputs_are_one_line_errors(phase1, store, runs, tmp_path):

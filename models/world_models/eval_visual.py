@@ -5,132 +5,31 @@ predicts ``T / frameskip`` frames open-loop (frozen noise unless told otherwise)
 compared with the recorded frame at that step. Beside it stands the "nothing moves"
 baseline that copies the last context frame. Image figures: SSIM (torchmetrics) and PSNR.
 
-SSIM rewards blur, so the figures that matter to a planner come from a readout: the
-object's pose read from a frame by colour segmentation (``ColourReadout``: centroid and the
-orientation of its principal axis, oriented by its skew; for Push-T's T block) or by the
-learned reward's pose predictor (``LearnedPoseReadout``), against the pose read the same way
-from the recorded frame, on windows where the object moves, and whether the agent is still
-visible (by colour). ``ColourReadout.from_layout`` takes the colours from the task's layout.
+SSIM rewards blur, so the figures that matter to a planner come from a readout
+(``gpc.models.world_models.readout``): every object's pose read from a frame by colour or by the
+learned reward's pose predictor, against the pose read the same way from the recorded frame, on
+the windows where that object moves, and whether the agent is still visible (by colour).
 """
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from typing import Any, cast
 
 import numpy as np
 import torch
 from torchmetrics.functional.image import structural_similarity_index_measure
 
-from gpc.datasets.layout import TaskLayout
 from gpc.datasets.sequence import HeldOutOf
-from gpc.models.rewards.registration import registration_distance
 from gpc.models.world_models.config import IMAGE_KEY, VisualWorldModelConfig
 from gpc.models.world_models.eval_state import episodes_phrase, held_out_windows
 from gpc.models.world_models.module import WorldModelModule
+from gpc.models.world_models.readout import ColourReadout, LearnedPoseReadout, pose_errors
 from gpc.models.world_models.visual import ACTION_KEY, VisualDynamics
 
-Colour = tuple[int, int, int]
-
-
-@dataclass(frozen=True)
-class ColourReadout:
-    """Reads an object's pose and an agent's presence from RGB frames by colour.
-
-    A pixel belongs to a part when it lies within ``tolerance`` (RGB distance, 0..255) of one
-    of the part's colours. The object's angle is that of its principal axis (largest
-    spread), oriented towards its skew (its long tail), plus ``angle_offset``. Positions are
-    reported in ``extent`` units per frame width (the task's frame span); ``from_layout`` fills
-    colours, offset, extent and outline from the task.
-    """
-
-    object_colours: tuple[Colour, ...]
-    agent_colours: tuple[Colour, ...]
-    extent: float  # units per frame width
-    tolerance: float = 40.0
-    angle_offset: float = 0.0  # radians added to the oriented principal axis' angle
-    agent_min_share: float = 0.3  # agent visible: at least this share of its median area in the recorded frames
-    moved_units: float = 5.0  # the object "moves" when its centroid shifts by more than this (extent units) ...
-    moved_deg: float = 5.0  # ... or it turns by more than this
-    vertices: tuple[tuple[float, float], ...] = ()  # the object's outline in its body frame; () skips the vertex error
-    centroid: tuple[float, float] = (0.0, 0.0)  # its area centroid in the body frame: the position colour reads
-
-    @classmethod
-    def from_layout(cls, layout: TaskLayout) -> ColourReadout:
-        """The task's renderer colours, frame span, axis offset and object outline."""
-        frame = layout.frame
-        if frame is None or not frame.object_colours or not frame.agent_colours or not layout.primary.has_angle:
-            raise ValueError(f"task {layout.name}: no colour readout (its frames name no object and agent colours, "
-                             "or its object has no angle)")
-        return cls(object_colours=frame.object_colours, agent_colours=frame.agent_colours, extent=frame.span,
-                   angle_offset=frame.angle_offset, vertices=layout.primary.vertices, centroid=layout.primary.centroid)
-
-    @property
-    def pose_vertices(self) -> np.ndarray:
-        """The outline about the pose this readout reports (the centroid), for the vertex error."""
-        return np.asarray(self.vertices, dtype=np.float64).reshape(-1, 2) - np.asarray(self.centroid)
-
-    def masks(self, frames: np.ndarray, colours: tuple[Colour, ...]) -> np.ndarray:
-        """``(N, S, S, 3)`` uint8 -> ``(N, S, S)`` bool."""
-        x = frames.astype(np.float32)
-        dist = np.min([np.linalg.norm(x - np.asarray(c, np.float32), axis=-1) for c in colours], axis=0)
-        return dist < self.tolerance
-
-    def object_pose(self, frames: np.ndarray) -> np.ndarray:
-        """``(N, S, S, 3)`` uint8 -> ``(N, 3)`` (x, y, angle); NaN where the object is not found."""
-        mask = self.masks(frames, self.object_colours)
-        s = frames.shape[1]
-        coords = (np.arange(s, dtype=np.float64) + 0.5) * (self.extent / s)
-        out = np.full((len(frames), 3), np.nan)
-        for i, m in enumerate(mask):
-            ys, xs = np.nonzero(m)
-            if len(xs) < 3:
-                continue
-            p = np.stack([coords[xs], coords[ys]], axis=1)
-            mean = p.mean(axis=0)
-            d = p - mean
-            _, vecs = np.linalg.eigh(d.T @ d)
-            axis = vecs[:, -1]
-            if np.sum((d @ axis) ** 3) < 0:
-                axis = -axis
-            out[i] = (*mean, math.atan2(axis[1], axis[0]) + self.angle_offset)
-        return out
-
-    def agent_area(self, frames: np.ndarray) -> np.ndarray:
-        """``(N, S, S, 3)`` uint8 -> ``(N,)`` agent pixels."""
-        return self.masks(frames, self.agent_colours).sum(axis=(1, 2))
-
-    def describe(self) -> dict[str, Any]:
-        return {"pose": "colour", **asdict(self)}
-
-
-class LearnedPoseReadout:
-    """The object pose read by a learned pose predictor (``gpc train reward``), the agent by colour.
-
-    The learned image reward reads poses this way, so these are the pose errors a planner
-    scoring with it actually faces; colour segmentation mistakes a blurred T for a turned one.
-    """
-
-    def __init__(self, colour: ColourReadout, predictor: torch.nn.Module, source: str, batch_size: int = 256) -> None:
-        self.colour, self.predictor, self.source, self.batch_size = colour, predictor.eval(), source, batch_size
-        # The predictor reads the recorded (state) pose, about the body origin: the outline as it is.
-        self.pose_vertices = np.asarray(colour.vertices, dtype=np.float64).reshape(-1, 2)
-        self.moved_units, self.moved_deg, self.agent_min_share = colour.moved_units, colour.moved_deg, colour.agent_min_share
-        self.agent_area = colour.agent_area
-
-    @torch.no_grad()
-    def object_pose(self, frames: np.ndarray) -> np.ndarray:
-        """``(N, S, S, 3)`` uint8 -> ``(N, 3)`` (x, y, angle) in the predictor's (state) units."""
-        x = torch.from_numpy(np.ascontiguousarray(frames)).movedim(-1, 1).float() / 255.0
-        parts = [self.predictor(x[i : i + self.batch_size]) for i in range(0, len(x), self.batch_size)]
-        return torch.cat(parts).double().numpy() if parts else np.zeros((0, 3))
-
-    def describe(self) -> dict[str, Any]:
-        return {"pose": "learned", "checkpoint": self.source, **asdict(self.colour)}
-
+__all__ = ["ColourReadout", "LearnedPoseReadout", "evaluate_visual_rollouts", "frame_grid", "readout_figures", "visual_markdown_table"]
 
 def _uint8(frames: torch.Tensor) -> np.ndarray:
     """``(..., 3, S, S)`` in [0, 1] -> ``(..., S, S, 3)`` uint8."""
@@ -145,18 +44,6 @@ def _image_scores(pred: torch.Tensor, true: torch.Tensor) -> dict[str, torch.Ten
     ssim = cast(torch.Tensor, structural_similarity_index_measure(a, b, data_range=1.0, reduction="none"))
     mse = (a - b).pow(2).flatten(1).mean(dim=1).clamp_min(1e-10)
     return {"ssim": ssim.reshape(n, t), "psnr": (-10.0 * torch.log10(mse)).reshape(n, t)}
-
-
-def _pose_errors(pred: np.ndarray, true: np.ndarray, vertices: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """``(..., 3)`` poses -> position error, angle error (degrees) and, given the object's ``(V, 2)`` outline, the
-    mean distance between its vertices placed at both poses (ADD: position and angle in one length, what the
-    registration reward compares); a missing prediction counts as NaN."""
-    out = {"object_units": np.linalg.norm(pred[..., :2] - true[..., :2], axis=-1),
-           "object_deg": np.abs((pred[..., 2] - true[..., 2] + np.pi) % (2 * np.pi) - np.pi) * (180.0 / np.pi)}
-    if vertices is not None and len(vertices):
-        out["object_vertex_units"] = registration_distance(torch.from_numpy(pred), torch.from_numpy(true),
-                                                           torch.from_numpy(vertices)).numpy()
-    return out
 
 
 @torch.no_grad()
@@ -207,23 +94,41 @@ def evaluate_visual_rollouts(
                                                                     for name in merged}} for i in range(steps)],
     }
     if readout is not None:
-        report["readout"] = _readout_figures(readout, model, true, last)
+        report["readout"] = readout_figures(readout, model, true, last)
         report["readout_config"] = readout.describe()
     return report, frame_grid(last[:grid_windows], true[:grid_windows], model[:grid_windows])
 
 
-def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndarray, true: np.ndarray, last: np.ndarray) -> dict[str, Any]:
-    """Object pose errors at every step (all windows) and at the final step on windows where the object moves;
+def readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndarray, true: np.ndarray, last: np.ndarray) -> dict[str, Any]:
+    """Every object's pose errors (``objects``, by name; the first object's also at the top, as for one object);
     the share of predicted frames where the agent is visible."""
     n, t = model.shape[:2]
-    pose = {k: readout.object_pose(v.reshape((-1,) + v.shape[2:])).reshape(n, t, 3) for k, v in (("model", model), ("true", true))}
-    pose["baseline"] = np.repeat(readout.object_pose(last)[:, None], t, axis=1)
-    vertices = readout.pose_vertices
-    moved = _pose_errors(pose["baseline"][:, -1], pose["true"][:, -1])
-    moving = (moved["object_units"] > readout.moved_units) | (moved["object_deg"] > readout.moved_deg)
+    count = len(readout.objects)
+    pose = {k: readout.poses(v.reshape((-1,) + v.shape[2:])).reshape(n, t, count, 3) for k, v in (("model", model), ("true", true))}
+    pose["baseline"] = np.repeat(readout.poses(last)[:, None], t, axis=1)
+    objects = {obj.name: _object_figures(readout, i, {k: v[:, :, i] for k, v in pose.items()})
+               for i, obj in enumerate(readout.objects)}
+    out: dict[str, Any] = dict(objects[readout.objects[0].name])
+    true_area = readout.agent_area(true.reshape((-1,) + true.shape[2:]))
+    threshold = max(1.0, readout.agent_min_share * float(np.median(true_area)))
+    area = readout.agent_area(model.reshape((-1,) + model.shape[2:])).reshape(n, t)
+    out["agent_visible"] = {"model": float((area >= threshold).mean()), "true": float((true_area >= threshold).mean()),
+                            "per_step": (area >= threshold).mean(axis=0).tolist(), "min_pixels": threshold}
+    out["objects"] = objects
+    return out
+
+
+def _object_figures(readout: ColourReadout | LearnedPoseReadout, i: int, pose: dict[str, np.ndarray]) -> dict[str, Any]:
+    """One object's pose errors at every step (all windows) and at the final step on the windows where it moves
+    (between the last context frame and the recorded final one); ``pose``: ``(N, T, 3)`` per source."""
+    obj, vertices = readout.objects[i], readout.outline(i)
+    moved = pose_errors(obj, pose["baseline"][:, -1], pose["true"][:, -1])
+    moving = moved["object_units"] > readout.moved_units
+    if "object_deg" in moved:
+        moving |= moved["object_deg"] > readout.moved_deg
     out: dict[str, Any] = {"moving_windows": int(moving.sum()), "per_step": {}, "final_moving": {}}
     for name in ("model", "baseline"):
-        errors = _pose_errors(pose[name], pose["true"], vertices)
+        errors = pose_errors(obj, pose[name], pose["true"], vertices)
         lost = np.isnan(errors["object_units"])
         out["per_step"][name] = {**{k: np.nanmean(v, axis=0).tolist() for k, v in errors.items()},
                                  "object_lost": lost.mean(axis=0).tolist()}
@@ -231,13 +136,9 @@ def _readout_figures(readout: ColourReadout | LearnedPoseReadout, model: np.ndar
             final = {k: v[moving, -1] for k, v in errors.items()}
             out["final_moving"][name] = {**{k: float(np.nanmean(v)) for k, v in final.items()},
                                          **{f"{k}_median": float(np.nanmedian(v)) for k, v in final.items()},
-                                         "object_deg_over_90": float(np.mean(final["object_deg"] > 90.0)),
+                                         **({"object_deg_over_90": float(np.mean(final["object_deg"] > 90.0))}
+                                            if "object_deg" in final and obj.symmetry == 1 else {}),
                                          "object_lost": float(lost[moving, -1].mean())}
-    true_area = readout.agent_area(true.reshape((-1,) + true.shape[2:]))
-    threshold = max(1.0, readout.agent_min_share * float(np.median(true_area)))
-    area = readout.agent_area(model.reshape((-1,) + model.shape[2:])).reshape(n, t)
-    out["agent_visible"] = {"model": float((area >= threshold).mean()), "true": float((true_area >= threshold).mean()),
-                            "per_step": (area >= threshold).mean(axis=0).tolist(), "min_pixels": threshold}
     if moving.any():
         m, b = out["final_moving"]["model"], out["final_moving"]["baseline"]
         out["final_moving"]["ratio"] = {k: m[k] / b[k] if b[k] > 0 else float("nan")
@@ -265,11 +166,15 @@ def frame_grid(last: np.ndarray, true: np.ndarray, pred: np.ndarray, scale: int 
 
 
 def visual_markdown_table(report: dict[str, Any], title: str = "Visual world model rollouts") -> str:
-    """One row per predicted frame: SSIM and PSNR (and object pose errors, agent visibility) as model / baseline."""
+    """One row per predicted frame: SSIM and PSNR (and the first object's pose errors, agent visibility) as model /
+    baseline; then each object's errors on the final frame of the windows where it moves."""
     ro = report.get("readout")
-    vertex = bool(ro and "object_vertex_units" in ro["per_step"]["model"])
-    head = ["step (actions)", "SSIM", "PSNR dB"] + (["object units", "object deg"] + (["object vertices"] if vertex else [])
-                                                    + ["agent visible"] if ro else [])
+    keys = [k for k in ("object_units", "object_deg", "object_vertex_units") if ro and k in ro["per_step"]["model"]]
+    objects = (ro.get("objects") or {"object": ro}) if ro else {}
+    several = len(objects) > 1
+    first = next(iter(objects)) if several else "object"  # the per-step columns are the first object's
+    names = {"object_units": f"{first} units", "object_deg": f"{first} deg", "object_vertex_units": f"{first} vertices"}
+    head = ["step (actions)", "SSIM", "PSNR dB"] + ([names[k] for k in keys] + ["agent visible"] if ro else [])
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {episodes_phrase(report)}; {report['resolution']} px, "
@@ -285,22 +190,39 @@ def visual_markdown_table(report: dict[str, Any], title: str = "Visual world mod
                  f"{row['model']['psnr']:.1f} / {row['baseline']['psnr']:.1f}"]
         if ro:
             m, b = ro["per_step"]["model"], ro["per_step"]["baseline"]
-            keys = ("object_units", "object_deg") + (("object_vertex_units",) if vertex else ())
             cells += [f"{m[k][i]:.1f} / {b[k][i]:.1f}" for k in keys]
             cells.append(f"{ro['agent_visible']['per_step'][i]:.2f}")
         lines.append("| " + " | ".join(cells) + " |")
-    if ro and ro["final_moving"]:
-        fm = ro["final_moving"]
-        lines += ["", f"Final frame, {ro['moving_windows']} windows where the object moves: position error "
-                  f"{fm['model']['object_units']:.1f} vs {fm['baseline']['object_units']:.1f} (ratio "
-                  f"{fm['ratio']['object_units']:.2f}), angle error {fm['model']['object_deg']:.1f} vs "
-                  f"{fm['baseline']['object_deg']:.1f} deg (ratio {fm['ratio']['object_deg']:.2f}; medians "
-                  f"{fm['model']['object_deg_median']:.1f} vs {fm['baseline']['object_deg_median']:.1f}, off by more than "
-                  f"90 deg in {fm['model']['object_deg_over_90']:.0%} vs {fm['baseline']['object_deg_over_90']:.0%}); "
-                  + (f"vertex error (position and angle in one length) {fm['model']['object_vertex_units']:.1f} vs "
-                     f"{fm['baseline']['object_vertex_units']:.1f} (ratio {fm['ratio']['object_vertex_units']:.2f}; medians "
-                     f"{fm['model']['object_vertex_units_median']:.1f} vs {fm['baseline']['object_vertex_units_median']:.1f}); "
-                     if vertex else "")
-                  + "agent visible in "
-                  f"{ro['agent_visible']['model']:.0%} of predicted frames ({ro['agent_visible']['true']:.0%} of recorded ones)."]
+    if not ro:
+        return "\n".join(lines) + "\n"
+    agent = (f"agent visible in {ro['agent_visible']['model']:.0%} of predicted frames "
+             f"({ro['agent_visible']['true']:.0%} of recorded ones).")
+    if not several:  # one sentence, as it always read for one object
+        if ro["final_moving"]:
+            lines += ["", f"Final frame, {ro['moving_windows']} windows where the object moves: "
+                      + _final_errors(ro["final_moving"]) + agent]
+        return "\n".join(lines) + "\n"
+    lines.append("")  # one line per object, then the agent
+    for name, fig in objects.items():
+        lines.append(f"Final frame, {fig['moving_windows']} windows where the {name} moves: "
+                     + _final_errors(fig["final_moving"]).rstrip("; ") + "." if fig["final_moving"] else
+                     f"The {name} moves in none of the windows (by more than the readout's threshold).")
+    lines.append(agent[0].upper() + agent[1:])
     return "\n".join(lines) + "\n"
+
+
+def _final_errors(fm: dict[str, Any]) -> str:
+    """One object's final-frame errors on its moving windows, model vs baseline, with their ratios."""
+    m, b, r = fm["model"], fm["baseline"], fm["ratio"]
+    text = f"position error {m['object_units']:.1f} vs {b['object_units']:.1f} (ratio {r['object_units']:.2f})"
+    if "object_deg" in m:
+        text += (f", angle error {m['object_deg']:.1f} vs {b['object_deg']:.1f} deg (ratio {r['object_deg']:.2f}; medians "
+                 f"{m['object_deg_median']:.1f} vs {b['object_deg_median']:.1f}"
+                 + (f", off by more than 90 deg in {m['object_deg_over_90']:.0%} vs {b['object_deg_over_90']:.0%}"
+                    if "object_deg_over_90" in m else "") + ")")
+    text += "; "
+    if "object_vertex_units" in m:
+        text += (f"vertex error (position and angle in one length) {m['object_vertex_units']:.1f} vs "
+                 f"{b['object_vertex_units']:.1f} (ratio {r['object_vertex_units']:.2f}; medians "
+                 f"{m['object_vertex_units_median']:.1f} vs {b['object_vertex_units_median']:.1f}); ")
+    return text

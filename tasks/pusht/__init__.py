@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
+from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, ObjectLook, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.planar import draw
 from gpc.tasks.planar.record import scripted_params
@@ -41,8 +41,8 @@ LAYOUT = TaskLayout(
                           size=50.0),),  # about the T's size in px
     # The T's stem runs along its body +y axis, its principal axis: body angle = axis angle - pi / 2.
     frame=FrameLayout(extent=(0.0, float(geometry.WORKSPACE)), marker_size=AGENT_RADIUS,
-                      object_colours=(render.BLOCK_FILL, render.BLOCK_EDGE),
-                      agent_colours=(draw.AGENT_FILL, draw.AGENT_EDGE), angle_offset=-math.pi / 2),
+                      objects=(ObjectLook(colours=(render.BLOCK_FILL, render.BLOCK_EDGE), angle_offset=-math.pi / 2),),
+                      agent_colours=(draw.AGENT_FILL, draw.AGENT_EDGE)),
 )
 
 

@@ -11,6 +11,7 @@ does not count: the goal compares the objects' positions (``docs/tasks.md``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -18,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from gpc.datasets.errors import DataError
-from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
+from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, ObjectLook, StateLayout, TaskLayout
 from gpc.tasks.base import EpisodeStats, Task
 from gpc.tasks.planar.draw import AGENT_EDGE, AGENT_FILL, draw_plan
 from gpc.tasks.planar.record import scripted_params
@@ -43,8 +44,12 @@ LAYOUT = TaskLayout(
                      vertices=tuple((float(x), float(y)) for x, y in geometry.CUBE_KEYPOINTS[:4])),
         ObjectLayout(name="sphere", pose=(5, 6), vertices=((0.0, 0.0),), size=2 * geometry.SPHERE_RADIUS),
     ),
-    frame=FrameLayout(extent=(0.0, WORKSPACE), marker_size=AGENT_RADIUS, object_colours=(render.CUBE_FILL, render.CUBE_EDGE),
-                      agent_colours=(AGENT_FILL, AGENT_EDGE)),
+    # The readout looks for the fills only, closely (RGB distance 20): the targets are outlines in the edge colours,
+    # which a 96 px frame blends towards white, near the fills. A square looks the same turned by 90 degrees; its 4th
+    # angular moment reads pi at angle 0 (corners at 45 degrees), hence the offset.
+    frame=FrameLayout(extent=(0.0, WORKSPACE), marker_size=AGENT_RADIUS, agent_colours=(AGENT_FILL, AGENT_EDGE),
+                      objects=(ObjectLook(colours=(render.CUBE_FILL,), symmetry=4, angle_offset=-math.pi / 4, tolerance=20.0),
+                               ObjectLook(colours=(render.SPHERE_FILL,), tolerance=20.0))),
 )
 
 # The paper's Table III row for this task (50 seeds, K=100, learned reward), keyed by gpc's controller labels.
