@@ -62,7 +62,7 @@ class ColourReadout:
     def from_layout(cls, layout: TaskLayout) -> ColourReadout:
         """The task's renderer colours, frame span, axis offset and object outline."""
         frame = layout.frame
-        if frame is None or not frame.object_colours or not frame.agent_colours or not layout.primary.has_angle:
+        if frame is None or not frame.object_colours or not frame.agent_colours or not layout.objects or not layout.primary.has_angle:
             raise ValueError(f"task {layout.name}: no colour readout (its frames name no object and agent colours, "
                              "or its object has no angle)")
         return cls(object_colours=frame.object_colours, agent_colours=frame.agent_colours, extent=frame.span,
