@@ -94,20 +94,13 @@ class Band:
         return cls(bins=bins.astype(np.int16), size=int(sizes.sum()), bin_sizes=sizes)
 
 
-def stamp(path: np.ndarray) -> tuple[slice, slice, np.ndarray]:
-    """The cells a pen moving along ``path`` ``(P, 2)`` (straight between points) inks: a block of the grid and its
-    ``(R, C)`` mask."""
-    lo = np.clip(np.floor((path.min(axis=0) - PEN_RADIUS) / CELL).astype(int), 0, GRID)
-    hi = np.clip(np.ceil((path.max(axis=0) + PEN_RADIUS) / CELL).astype(int) + 1, 0, GRID)
+def stamp(a: np.ndarray, b: np.ndarray) -> tuple[slice, slice, np.ndarray]:
+    """The cells a pen moving straight from ``a`` to ``b`` inks: a block of the grid around the segment and its
+    ``(R, C)`` mask (a block per segment keeps a long, bent stroke from testing every cell of its bounding box)."""
+    lo = np.clip(np.floor((np.minimum(a, b) - PEN_RADIUS) / CELL).astype(int), 0, GRID)
+    hi = np.clip(np.ceil((np.maximum(a, b) + PEN_RADIUS) / CELL).astype(int) + 1, 0, GRID)
     rows, cols = slice(int(lo[1]), int(hi[1])), slice(int(lo[0]), int(hi[0]))
-    points = cell_points(rows, cols)
-    if len(path) == 1:
-        near = np.linalg.norm(points - path[0], axis=-1) <= PEN_RADIUS
-    else:
-        near = np.zeros(points.shape[:2], dtype=bool)
-        for a, b in zip(path[:-1], path[1:]):
-            near |= segment_distance(points, a, b)[0] <= PEN_RADIUS
-    return rows, cols, near
+    return rows, cols, segment_distance(cell_points(rows, cols), a, b)[0] <= PEN_RADIUS
 
 
 def f1_from_counts(on_band: int | np.ndarray, off_band: int | np.ndarray, band: int | np.ndarray) -> np.ndarray:
