@@ -67,10 +67,12 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.nd
     return np.linalg.norm(ap - t[..., None] * ab, axis=-1), t
 
 
+_CELLS = np.stack(np.meshgrid(CENTRES, CENTRES), axis=-1)  # (GRID, GRID, 2): each cell's centre (x, y), rows along y
+
+
 def cell_points(rows: slice = slice(0, GRID), cols: slice = slice(0, GRID)) -> np.ndarray:
     """Centres ``(R, C, 2)`` (x, y) of a block of cells."""
-    xs, ys = np.meshgrid(CENTRES[cols], CENTRES[rows])
-    return np.stack([xs, ys], axis=-1)
+    return _CELLS[rows, cols]
 
 
 @dataclass(frozen=True)
@@ -94,13 +96,18 @@ class Band:
         return cls(bins=bins.astype(np.int16), size=int(sizes.sum()), bin_sizes=sizes)
 
 
-def stamp(a: np.ndarray, b: np.ndarray) -> tuple[slice, slice, np.ndarray]:
-    """The cells a pen moving straight from ``a`` to ``b`` inks: a block of the grid around the segment and its
-    ``(R, C)`` mask (a block per segment keeps a long, bent stroke from testing every cell of its bounding box)."""
-    lo = np.clip(np.floor((np.minimum(a, b) - PEN_RADIUS) / CELL).astype(int), 0, GRID)
-    hi = np.clip(np.ceil((np.maximum(a, b) + PEN_RADIUS) / CELL).astype(int) + 1, 0, GRID)
+def stamp(path: np.ndarray) -> tuple[slice, slice, np.ndarray]:
+    """The cells a pen moving along ``path`` ``(P, 2)`` (straight between points) inks: a block of the grid and its
+    ``(R, C)`` mask, every segment at once (one vectorised pass, however many ticks the path has)."""
+    lo = np.clip(np.floor((path.min(axis=0) - PEN_RADIUS) / CELL).astype(int), 0, GRID)
+    hi = np.clip(np.ceil((path.max(axis=0) + PEN_RADIUS) / CELL).astype(int) + 1, 0, GRID)
     rows, cols = slice(int(lo[1]), int(hi[1])), slice(int(lo[0]), int(hi[0]))
-    return rows, cols, segment_distance(cell_points(rows, cols), a, b)[0] <= PEN_RADIUS
+    points = _CELLS[rows, cols][:, :, None]  # (R, C, 1, 2)
+    a, ab = path[:-1] if len(path) > 1 else path, np.diff(path, axis=0) if len(path) > 1 else np.zeros((1, 2))
+    ap = points - a  # (R, C, S, 2)
+    t = np.clip((ap * ab).sum(axis=-1) / np.maximum((ab * ab).sum(axis=-1), 1e-12), 0.0, 1.0)
+    gap = ap - t[..., None] * ab
+    return rows, cols, ((gap * gap).sum(axis=-1) <= PEN_RADIUS**2).any(axis=-1)
 
 
 def f1_from_counts(on_band: int | np.ndarray, off_band: int | np.ndarray, band: int | np.ndarray) -> np.ndarray:

@@ -78,14 +78,13 @@ class DrawSim(AgentScene):
 
     # ------------------------------------------------------------------ dynamics
     def _ink_path(self, path: np.ndarray) -> None:
-        for a, b in zip(path[:-1], path[1:]) if len(path) > 1 else [(path[0], path[0])]:
-            rows, cols, near = geometry.stamp(a, b)
-            new = near & ~self.ink[rows, cols]
-            if new.any():
-                self.ink[rows, cols] |= new
-                bins = self.band.bins[rows, cols][new]
-                self.bin_ink += np.bincount(bins[bins >= 0], minlength=3 * N_BINS)
-                self.off_ink += int((bins < 0).sum())
+        rows, cols, near = geometry.stamp(path)
+        new = near & ~self.ink[rows, cols]
+        if new.any():
+            self.ink[rows, cols] |= new
+            bins = self.band.bins[rows, cols][new]
+            self.bin_ink += np.bincount(bins[bins >= 0], minlength=3 * N_BINS)
+            self.off_ink += int((bins < 0).sum())
 
     def step(self, action: np.ndarray) -> np.ndarray:
         """Track target ``action`` (px) for one control period, inking the pen's path tick by tick; the path
