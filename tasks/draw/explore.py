@@ -55,7 +55,7 @@ def outline_point(vertices: np.ndarray, u: float) -> tuple[np.ndarray, np.ndarra
     """The point at arc length ``u`` (mod the perimeter) along the outline from vertex 0, and the edge's unit direction."""
     lengths = edge_lengths(vertices)
     u = float(u) % float(lengths.sum())
-    edge = int(min(np.searchsorted(np.cumsum(lengths), u, side="right"), 2))
+    edge = min(int(np.searchsorted(np.cumsum(lengths), u, side="right")), 2)
     a, b = vertices[edge], vertices[(edge + 1) % 3]
     along = (b - a) / lengths[edge]
     return a + along * (u - (np.cumsum(lengths)[edge] - lengths[edge])), along

@@ -26,14 +26,15 @@ class DrawSim(AgentScene):
     def __init__(self, vertices: np.ndarray | None = None) -> None:
         super().__init__()
         self.ink = np.zeros((GRID, GRID), dtype=bool)
+        self._band_of: np.ndarray | None = None  # the vertices ``band`` was computed for (recomputed when they change)
         self.set_triangle(np.array([[156.0, 156.0], [356.0, 156.0], [256.0, 356.0]]) if vertices is None else vertices)
 
     def set_triangle(self, vertices: np.ndarray) -> None:
         """Make ``vertices`` ``(3, 2)`` the target (its band recomputed; the ink recounted against it)."""
         vertices = np.asarray(vertices, dtype=np.float64).reshape(3, 2)
-        if not hasattr(self, "vertices") or not np.array_equal(vertices, self.vertices):
-            self.vertices = vertices.copy()
-            self.band = Band.of(self.vertices)
+        if self._band_of is None or not np.array_equal(vertices, self._band_of):
+            self.band, self._band_of = Band.of(vertices), vertices.copy()
+        self.vertices = vertices.copy()
         self._recount()
 
     def _recount(self) -> None:
