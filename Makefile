@@ -9,13 +9,14 @@ TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
 # make test: pytest processes, one torch thread each (the suite is mostly single-threaded subprocesses).
 TEST_WORKERS ?= 2
-# TASK: the task a pipeline runs (pusht, swap, or one of yours named in GPC_TASKS); its runs and results folders are its own.
+# TASK: the task a pipeline runs (pusht, swap, draw, or one of yours named in GPC_TASKS); its runs and results folders are its own.
 TASK ?= pusht
 RUN_DIR ?= runs/$(TASK)-$(PROFILE)
 # Per task: the state policy's observations, its name in table titles and the paper's state table (if it has one).
 POLICY_OBS.pusht := keypoints
 TITLE.pusht := Push-T
 TITLE.swap := Cube & Sphere Swapping
+TITLE.draw := Triangle Drawing
 PAPER_STATE.pusht := --paper pusht-state
 # Per task, vision: the paper's vision row (`gpc compare --paper`, the task's PAPER) where it has one.
 PAPER_VISION.pusht := --paper pusht-vision
@@ -190,7 +191,7 @@ endif
 .PHONY: help venv test test-fast lint types bench reproduce reproduce-pusht reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
 
 help:
-	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
+	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
 	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make reproduce-pusht-vision   the same for TASK=pusht (the default)"

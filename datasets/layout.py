@@ -134,7 +134,8 @@ class TaskLayout:
 
     ``objects``: every object the task is about, in the order the goal (and a ``goal`` observation) lays
     them out. Components that read a single object's pose (a world model's object-frame features) read
-    the first.
+    the first. A task with no object to place (a drawing, whose state is the ink) has none: its goal is
+    empty, and it names its own reward on states (``Task.state_reward``).
     """
 
     name: str
@@ -146,8 +147,6 @@ class TaskLayout:
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError("a task layout needs a name")
-        if not self.objects:
-            raise ValueError(f"task {self.name}: a layout needs at least one object")
         names = [o.name for o in self.objects]
         if len(set(names)) != len(names):
             raise ValueError(f"task {self.name}: object names {names} repeat")
@@ -166,7 +165,9 @@ class TaskLayout:
 
     @property
     def primary(self) -> ObjectLayout:
-        """The object single-object components read (the first)."""
+        """The object single-object components read (the first); check ``objects`` first where a task may have none."""
+        if not self.objects:
+            raise ValueError(f"task {self.name}: it has no object (its state holds no pose to read)")
         return self.objects[0]
 
     @property
@@ -176,7 +177,8 @@ class TaskLayout:
 
     @property
     def goal(self) -> tuple[float, ...] | None:
-        """The default goal of every object, laid out as ``pose_dims``; None where a goal varies per episode."""
+        """The default goal of every object, laid out as ``pose_dims``; None where a goal varies per episode; ()
+        without objects (nothing to place, nothing to observe as a goal)."""
         if any(obj.goal is None for obj in self.objects):
             return None
         return tuple(g for obj in self.objects for g in obj.goal)  # type: ignore[union-attr]

@@ -1,7 +1,7 @@
 """Tasks: environments, experts, exploration and task geometry. Nothing else knows their constants.
 
 ``get_task(name)`` returns a ``Task`` (``gpc.tasks.base``), the one interface collection,
-training, planning and evaluation use. Push-T ships built in. Your own task becomes known by
+training, planning and evaluation use. Push-T, Cube & Sphere Swapping and Triangle Drawing ship built in. Your own task becomes known by
 name, to the library and to every ``gpc`` command, in one of three ways:
 
 - ``register_task(task)`` in your process (worker processes get it from their parent);
@@ -20,7 +20,8 @@ from importlib.metadata import entry_points
 
 from gpc.tasks.base import Task
 
-BUILT_IN = {"pusht": "gpc.tasks.pusht", "swap": "gpc.tasks.swap"}  # name -> module exposing TASK (imported on first use)
+# name -> module exposing TASK (imported on first use)
+BUILT_IN = {"pusht": "gpc.tasks.pusht", "swap": "gpc.tasks.swap", "draw": "gpc.tasks.draw"}
 DEFAULT_TASK = "pusht"  # what commands act on when no --task is given
 ENV_VAR, ENTRY_POINTS = "GPC_TASKS", "gpc.tasks"
 _REGISTRY: dict[str, Task] = {}

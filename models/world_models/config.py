@@ -105,12 +105,15 @@ class DynamicsConfig:
     def for_layout(cls, layout: TaskLayout, frame: str | None = None, **sizes: Any) -> DynamicsConfig:
         """The task's state layout with the given network sizes; ``frame="object"`` (the default when the
         first object has an angle) adds its object-frame features."""
-        s, obj = layout.state, layout.primary
-        if frame == "object" and not obj.frame:
-            raise ValueError(f"--frame object needs an object with an angle; task {layout.name}'s {obj.name} has none (use world)")
-        use_object = bool(obj.frame) if frame is None else frame == "object"
+        s = layout.state
+        obj = layout.primary if layout.objects else None
+        if frame == "object" and (obj is None or not obj.frame):
+            what = f"task {layout.name}'s {obj.name} has none" if obj is not None else f"task {layout.name} has no object"
+            raise ValueError(f"--frame object needs an object with an angle; {what} (use world)")
+        use_object = obj is not None and (bool(obj.frame) if frame is None else frame == "object")
         return cls(state_dim=s.dim, action_dim=layout.action.dim, angle_dims=s.angle_dims, action_target_dims=s.action_targets,
-                   object_frame=obj.frame if use_object else (), object_length=obj.size, **sizes)
+                   object_frame=obj.frame if obj is not None and use_object else (), object_length=obj.size if obj is not None else 1.0,
+                   **sizes)
 
     @property
     def object_points(self) -> int:

@@ -33,14 +33,15 @@ METRICS = {"object_px": "object px", "object_deg": "object deg", "agent_px": "ag
 def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
     """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors (an object metric: the mean over the task's objects)."""
     out = {"object_px": torch.stack([(pred[..., list(o.pose[:2])] - true[..., list(o.pose[:2])]).norm(dim=-1)
-                                     for o in layout.objects]).mean(dim=0)}
+                                     for o in layout.objects]).mean(dim=0)} if layout.objects else {}
     turning = [o.angle for o in layout.objects if o.angle is not None]
     if turning:
         out["object_deg"] = torch.stack([wrap_angle(pred[..., a] - true[..., a]).abs() for a in turning]).mean(dim=0) * (180.0 / math.pi)
     if layout.state.agent_xy:
         ag = list(layout.state.agent_xy)
         out["agent_px"] = (pred[..., ag] - true[..., ag]).norm(dim=-1)
-    out["registration_px"] = layout_registration(pred, true, layout)
+    if layout.objects:  # a task without objects (a drawing) has no outline to register
+        out["registration_px"] = layout_registration(pred, true, layout)
     return out
 
 

@@ -2,5 +2,6 @@
 loop, approach-path following, the OpenCV drawing helpers and colours, the recording loop of scripted episodes, and
 the true simulator as a world model.
 
-Push-T and Cube & Sphere Swapping import it; each keeps its own objects, reward and observation.
+Push-T, Cube & Sphere Swapping and Triangle Drawing (its agent a pen) import it; each keeps its own objects, reward and
+observation.
 """

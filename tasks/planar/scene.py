@@ -41,8 +41,9 @@ class AgentScene:
         self.agent_shape = pymunk.Circle(self.agent, AGENT_RADIUS)
         self.space.add(self.agent, self.agent_shape)
 
-    def drive(self, action: np.ndarray) -> None:
-        """Track target ``action`` (px) for one control period: ``SUBSTEPS`` ticks of PD control."""
+    def drive(self, action: np.ndarray, trace: list[tuple[float, float]] | None = None) -> None:
+        """Track target ``action`` (px) for one control period: ``SUBSTEPS`` ticks of PD control; ``trace`` (if given)
+        receives the agent's position after each tick (a pen inks the path between them)."""
         tx, ty = float(action[0]), float(action[1])
         agent, space = self.agent, self.space
         for _ in range(SUBSTEPS):
@@ -51,6 +52,8 @@ class AgentScene:
             ay = K_P * (ty - p.y) + K_V * (0.0 - v.y)
             agent.velocity = (v.x + ax * DT, v.y + ay * DT)
             space.step(DT)
+            if trace is not None:
+                trace.append((agent.position.x, agent.position.y))
 
     def lapse_contacts(self, bodies: Sequence[pymunk.Body] = ()) -> None:
         """Let pymunk's cached contacts expire: the agent (and ``bodies``, apart) parked far outside for empty ticks.

@@ -1,0 +1,65 @@
+"""Recording drawing episodes in the store layout the other tasks use (the loop is ``gpc.tasks.planar.record``'s).
+
+Each step stores what was observed before acting: ``state`` (33: the pen, the triangle, the ink summary), ``img``
+(96x96x3 uint8), the ``action``, and ``n_contacts`` (always 0: nothing is touched; kept so every store has it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gpc.tasks.base import EpisodeStats
+from gpc.tasks.draw import geometry
+from gpc.tasks.draw.env import MAX_EPISODE_STEPS, DrawEnv
+from gpc.tasks.draw.sim import DrawSim
+from gpc.tasks.planar import record as planar_record
+from gpc.tasks.planar.record import record_loop
+from gpc.tasks.planar.sim_model import SIM_KEY
+
+ScriptedPolicy = planar_record.ScriptedPolicy[DrawSim]
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """How long episodes run and what is stored."""
+
+    max_steps: int = MAX_EPISODE_STEPS
+    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
+    images: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
+
+
+def observe(env: DrawEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
+    """One step's observation in the data layout; ``sim`` adds the full scene (pen, triangle, ink grid; never
+    recorded) that the ground-truth world model restores from."""
+    obs = {"state": env.sim.state().astype(np.float32)}
+    if images:
+        obs["img"] = env.render()
+    if sim:
+        obs[SIM_KEY] = env.sim.vector()
+    return obs
+
+
+def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
+    env = DrawEnv(obs_type="state")
+    env.reset(seed=seed)
+    policy.reset(seed)
+    return record_loop(env, lambda: policy.act(env.sim, np.zeros(0)), lambda: observe(env, config.images), seed,
+                       config.max_steps, config.stop_on_success)
+
+
+def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
+    """Score (max reward) of each recorded episode, from its states' ink summaries.
+
+    A store holds what was observed before each action, so an episode's last stroke is not in it: the score of a
+    recorded episode can fall short of the one its recording reported by that stroke.
+    """
+    rewards = geometry.f1_from_summary(np.asarray(states, dtype=np.float64)[:, 8:])
+    starts = np.concatenate([[0], np.asarray(episode_ends)[:-1]]).astype(int)
+    return np.array([rewards[s:int(e)].max() for s, e in zip(starts, episode_ends)])

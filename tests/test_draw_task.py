@@ -1,0 +1,76 @@
+"""Triangle Drawing as a gpc task: a layout without objects, the task's own reward on predicted states, the ceiling.
+
+The canvas, expert and explorer have their own tests (tests/test_draw.py); every stage through the CLI runs in
+tests/test_reproduce_draw.py. These check what the rest of gpc sees through ``gpc.tasks.get_task("draw")`` alone.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gpc.harness.recipes import RewardSpec, build_reward
+from gpc.models.world_models.config import DynamicsConfig
+from gpc.tasks import get_task
+from gpc.tasks.draw import geometry
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def test_nothing_outside_tasks_imports_or_names_the_task():
+    named = re.compile(r"""tasks[./]draw|["']draw["']""")
+    hits = [f"{path.relative_to(ROOT)}:{i}" for folder in ("gpc", "gpc_cli", "models", "datasets")
+            for path in sorted((ROOT / folder).rglob("*.py"))
+            for i, line in enumerate(path.read_text().splitlines(), 1) if named.search(line)]
+    assert hits == []
+
+
+def test_a_layout_without_objects_reads_no_goal_and_no_object_frame():
+    task = get_task("draw")
+    layout = task.layout
+    assert layout.objects == () and layout.goal == () and layout.pose_dims == () and "goal" not in task.record_keys(True, "fixed")
+    config = DynamicsConfig.for_layout(layout)
+    assert config.object_frame == () and config.state_dim == 33 and config.action_target_dims == (0, 1)
+    with pytest.raises(ValueError, match="task draw has no object"):
+        DynamicsConfig.for_layout(layout, frame="object")
+    with pytest.raises(ValueError, match="no object"):
+        _ = layout.primary
+
+
+def test_the_planning_reward_is_the_f1_the_true_states_score():
+    """``ink-f1`` (registered by the harness from the task) scores true states as the environment does, and has a
+    gradient for GPC-OPT."""
+    task = get_task("draw")
+    env = task.make_env("fixed")
+    env.reset(seed=100001)
+    states, f1s = [], []
+    for target in np.linspace(env.sim.pen(), env.sim.vertices.mean(axis=0), 5):
+        _, reward, *_ = env.step(target)
+        states.append(env.sim.state())
+        f1s.append(reward)
+    futures = torch.tensor(np.array(states)[None], dtype=torch.float32, requires_grad=True)
+    reward = build_reward(RewardSpec(), task)
+    score = reward(futures)
+    assert score.shape == (1,) and score.item() == pytest.approx(f1s[-1], abs=1e-5)
+    score.sum().backward()
+    assert futures.grad is not None and futures.grad[0, -1, 8:-1].min() > 0 and futures.grad[0, -1, -1] < 0  # ink on the
+    # outline raises it, ink off lowers it; only the last step counts (aggregate "final")
+    discounted = build_reward(RewardSpec(aggregate="discounted"), task)(futures.detach())
+    assert discounted.item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(f1s)), abs=1e-4)
+    assert float(geometry.f1_from_summary(states[-1][8:])) == pytest.approx(f1s[-1], abs=1e-12)
+
+
+def test_the_ceiling_replays_the_true_canvas():
+    task = get_task("draw")
+    env = task.make_env("fixed")
+    env.reset(seed=100003)
+    obs = task.observe(env, False, True)
+    actions = np.linspace(env.sim.pen(), [256.0, 256.0], 6)
+    predicted = task.simulator().rollout(torch.as_tensor(obs[task.sim_key])[None, None], torch.as_tensor(actions)[None])
+    true = [env.step(action)[0] for action in actions]
+    np.testing.assert_allclose(predicted[0].numpy(), np.array(true), rtol=1e-6, atol=1e-4)
