@@ -56,6 +56,7 @@ class CollectJob:
     controller: Any = None  # closed-loop: a picklable recipe (``gpc.harness.recipes.PlannerRecipe``)
     batch: int = 25  # closed-loop: episodes stepped in lockstep per controller call (gpc eval's default)
     threads: int = 1  # closed-loop: torch threads per process (as in ``gpc eval``, the episodes depend on it)
+    backend: Any = None  # None: local processes; a ``ray_backend.RayOptions``: Ray actors (the same store)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)  # raises for an unknown task
@@ -271,7 +272,7 @@ def _collect_into(job: CollectJob, made: Fresh, on_start: Callable[[int], None] 
     if on_start:
         on_start(len(job.seeds) - len(todo))
     args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
-    episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers)
+    episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers, job.backend)
     stats: list[dict] = []
     try:
         for data, st in episodes:
@@ -300,7 +301,12 @@ def _init_worker(tasks: Sequence[Task]) -> None:
         register_task(task)
 
 
-def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+def _results(args: list, workers: int, backend: Any = None) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+    if backend is not None:
+        from gpc.harness import ray_backend
+
+        yield from ray_backend.map_episodes(args, workers, backend)
+        return
     if workers == 1 or len(args) <= 1:
         yield from map(_run_one, args)
         return
@@ -312,7 +318,7 @@ def _closed_loop(job: CollectJob, todo: list[int]) -> Iterator[tuple[dict[str, n
     """The controller's episodes of the ``todo`` seeds, in seed order. Lockstep groups are cut from all the job's
     seeds, as ``gpc eval`` cuts them, so a resumed job runs each episode exactly as an uninterrupted one would."""
     config = EvalConfig(seeds=tuple(job.seeds), task=job.task, goal=job.goal, max_steps=job.steps, batch=job.batch,
-                        workers=job.workers, threads=job.threads, record=True)
+                        workers=job.workers, threads=job.threads, record=True, backend=job.backend)
     wanted = set(todo)
     jobs = [(group, config) for group in config.groups() if wanted & set(group)]
     for group in map_groups(job.controller, jobs, config):

@@ -48,6 +48,7 @@ class EvalConfig:
     videos: int = 0  # MP4s for the first N seeds (with the planned chunk drawn)
     video_size: int = 384
     record: bool = False  # keep every episode's steps in the task's store layout (`gpc record`)
+    backend: Any = None  # None: local processes; a ``ray_backend.RayOptions``: actors on a Ray cluster (same results)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)
@@ -247,7 +248,13 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
 
 
 def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
-    """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes."""
+    """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes
+    (Ray actors with ``config.backend``)."""
+    if config.backend is not None:
+        from gpc.harness import ray_backend
+
+        yield from ray_backend.map_groups(factory, jobs, config)
+        return
     if config.workers == 1 or len(jobs) == 1:
         previous = torch.get_num_threads()
         _init_worker(factory, config.threads)
