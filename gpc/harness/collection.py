@@ -16,6 +16,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -275,19 +276,20 @@ def _collect_into(job: CollectJob, made: Fresh, on_start: Callable[[int], None] 
     episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers, job.backend)
     stats: list[dict] = []
     try:
-        for data, st in episodes:
-            try:
-                store.append_episode(data, seed=st["seed"], score=st["score"])
-            except OSError as exc:  # a full disk: the episode being written is not committed
-                kept = (f"{out} is unchanged" if replacing else f"{out} is not kept (no episode was written)"
-                        if made.new and not made.kept else f"{store.n_episodes} whole episodes are kept in {out}")
-                raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
-            if not replacing:
-                made.keep()  # a store holding an episode is a result: never removed
-            stats.append(st)
-            if on_episode:
-                on_episode(st)
-            interrupts.check()
+        with closing(episodes) as each:  # a stop between episodes ends the workers now
+            for data, st in each:
+                try:
+                    store.append_episode(data, seed=st["seed"], score=st["score"])
+                except OSError as exc:  # a full disk: the episode being written is not committed
+                    kept = (f"{out} is unchanged" if replacing else f"{out} is not kept (no episode was written)"
+                            if made.new and not made.kept else f"{store.n_episodes} whole episodes are kept in {out}")
+                    raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
+                if not replacing:
+                    made.keep()  # a store holding an episode is a result: never removed
+                stats.append(st)
+                if on_episode:
+                    on_episode(st)
+                interrupts.check()
     except interrupts.Interrupted as stop:
         stop.kept = (f"{out} is unchanged (its replacement was stopped; run the same command to start it again)"
                      if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")

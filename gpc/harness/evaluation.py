@@ -17,6 +17,7 @@ import statistics
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -235,11 +236,12 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     jobs = [(g, config) for g in config.groups() if tuple(int(s) for s in g) not in have]
     groups: list[dict[str, Any]] = list(finished)
     if jobs:
-        for group in map_groups(factory, jobs, config):
-            groups.append(group)
-            if on_group:
-                on_group(group)
-            interrupts.check()
+        with closing(map_groups(factory, jobs, config)) as done:  # a stop between groups ends the workers now
+            for group in done:
+                groups.append(group)
+                if on_group:
+                    on_group(group)
+                interrupts.check()
     result = summarize(groups, time.perf_counter() - t0, config)
     summary = getattr(factory, "summary", None)  # a PlannerRecipe says what it built
     if callable(summary):

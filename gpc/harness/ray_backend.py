@@ -24,7 +24,7 @@ import tempfile
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -129,8 +129,11 @@ class Worker:
         finally:
             shutil.rmtree(folder, ignore_errors=True)
 
-    def pid(self) -> int:
-        return os.getpid()
+    def where(self) -> tuple[int, str]:
+        """This worker's process id and Ray node."""
+        import ray
+
+        return os.getpid(), ray.get_runtime_context().get_node_id()
 
     def group(self, job: Any) -> dict[str, Any]:
         from gpc.harness.evaluation import _work
@@ -151,11 +154,13 @@ def _no_controller() -> None:
 # ---------------------------------------------------------------------- the pool
 @dataclass
 class Status:
-    """What the progress bar shows and the tests read: workers alive, units rerun, the actors' pids."""
+    """What the progress bar shows and the tests read: workers alive, units rerun, where the workers run."""
 
     alive: int = 0
     reruns: int = 0
-    busy: dict[int, int] | None = None  # unit index -> the pid of the actor running it
+    busy: dict[int, int] = field(default_factory=dict)  # unit index -> the pid of the actor running it
+    nodes: set[str] = field(default_factory=set)  # the Ray nodes the first workers were placed on
+    pids: list[int] = field(default_factory=list)  # the first workers' process ids
 
 
 STATUS = Status()
@@ -168,13 +173,17 @@ class _Pool:
         self.ray, self.make = ray, make
         self.actors = [make() for _ in range(workers)]
         self.pids: dict[Any, int] = {}
+        self.ready: set[Any] = set()  # workers known to be up: placed, or a unit finished since they started
 
-    def pid(self, actor: Any) -> int:
-        if actor not in self.pids:
-            self.pids[actor] = int(self.ray.get(actor.pid.remote()))
-        return self.pids[actor]
+    def place(self) -> set[str]:
+        """Wait for the workers to start (their checkpoints loaded); the nodes they run on."""
+        places = self.ray.get([actor.where.remote() for actor in self.actors])
+        self.pids = {actor: pid for actor, (pid, _) in zip(self.actors, places)}
+        self.ready = set(self.actors)
+        return {node for _, node in places}
 
     def replace(self, actor: Any) -> None:
+        self.ready.discard(actor)
         self.ray.kill(actor, no_restart=True)
         self.actors[self.actors.index(actor)] = self.make()
 
@@ -191,8 +200,11 @@ def run_ordered(ray: Any, pool: _Pool, method: str, items: Sequence[Any], every:
     """
     from ray.exceptions import RayActorError, RayTaskError, WorkerCrashedError
 
-    todo, done, pending, tries, upto = deque(range(len(items))), {}, {}, dict.fromkeys(range(len(items)), 0), 0
-    STATUS.alive, STATUS.reruns, STATUS.busy = len(pool.actors), 0, {}
+    todo: deque[int] = deque(range(len(items)))
+    done: dict[int, Any] = {}
+    pending: dict[Any, tuple[int, Any]] = {}
+    tries, upto = dict.fromkeys(range(len(items)), 0), 0
+    STATUS.reruns, STATUS.busy = 0, {}
     while upto < len(items):
         busy = {actor for _, actor in pending.values()}
         for actor in [a for a in pool.actors if a not in busy]:
@@ -205,6 +217,7 @@ def run_ordered(ray: Any, pool: _Pool, method: str, items: Sequence[Any], every:
             i, actor = pending.pop(ref)
             try:
                 done[i] = ray.get(ref)
+                pool.ready.add(actor)
             except RayTaskError as exc:  # the unit itself failed: the local backend raises the same
                 raise (exc.cause if isinstance(exc.cause, BaseException) else exc) from None
             except (RayActorError, WorkerCrashedError) as exc:
@@ -215,7 +228,7 @@ def run_ordered(ray: Any, pool: _Pool, method: str, items: Sequence[Any], every:
                 pool.replace(actor)
                 todo.appendleft(i)
                 STATUS.reruns += 1
-        STATUS.busy = {i: pool.pids.get(actor, -1) for i, actor in pending.values()}
+        STATUS.busy, STATUS.alive = {i: pool.pids.get(actor, -1) for i, actor in pending.values()}, len(pool.ready)
         while upto in done:
             yield done.pop(upto)
             upto += 1
@@ -233,9 +246,8 @@ def _units(factory: Any, threads: int, options: RayOptions, workers: int, method
         actor = ray.remote(num_cpus=options.cpus, num_gpus=options.gpus, max_restarts=0)(Worker)
         pool = _Pool(ray, lambda: actor.remote(factory, threads, user_tasks(), blobs), min(workers, len(items)))
         try:
-            for a in pool.actors:
-                pool.pid(a)
-            STATUS.alive = len(pool.actors)
+            STATUS.nodes = pool.place()
+            STATUS.alive, STATUS.pids = len(pool.ready), list(pool.pids.values())
             yield from run_ordered(ray, pool, method, items)
         finally:
             pool.close()
