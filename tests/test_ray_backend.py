@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from faults import digest, inline
 
+from gpc.datasets.store import EpisodeStore
 from gpc.harness import interrupts, ray_backend
 from gpc.harness.evaluation import EvalConfig, evaluate
 from gpc.harness.recipes import make_recipe
@@ -54,8 +55,14 @@ def _numbers(out: Path) -> tuple[list, dict]:
 
 
 def _bytes(store: Path) -> dict[str, str]:
-    """Every file of a store but its root record (which holds the time it was created)."""
-    return {name: sha for name, sha in digest(store).items() if name != f"{store.name}/zarr.json"}
+    """Every file of a store, by its path inside, but the root attributes (which hold the time it was created)."""
+    files = {name.split("/", 1)[1]: sha for name, sha in digest(store).items()}
+    return {name: sha for name, sha in files.items() if name not in (".zattrs", "zarr.json")}
+
+
+def _attrs(store: Path) -> dict:
+    attrs = dict(EpisodeStore.open(store).attrs)
+    return {key: value for key, value in attrs.items() if key != "created"}
 
 
 def test_eval_on_two_nodes_equals_one_local_process(cluster, tiny_pusht, tmp_path):
@@ -78,8 +85,8 @@ def test_record_and_collect_on_ray_write_the_local_stores_byte_for_byte(cluster,
         assert inline(*args, "--out", str(local))[0] == 0
         code, output = inline(*args, "--out", str(on_ray), "--backend", "ray", "--workers", "2")
         assert code == 0, output
-        assert _bytes(on_ray) == {k.replace(local.name, on_ray.name, 1): v for k, v in _bytes(local).items()}, name
-        assert len(_bytes(local)) > 5
+        assert _bytes(on_ray) == _bytes(local) and len(_bytes(local)) > 5, name
+        assert _attrs(on_ray) == _attrs(local), name
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import multiprocessing as mp
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from contextlib import closing
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
@@ -303,7 +303,7 @@ def _init_worker(tasks: Sequence[Task]) -> None:
         register_task(task)
 
 
-def _results(args: list, workers: int, backend: Any = None) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+def _results(args: list, workers: int, backend: Any = None) -> Generator[tuple[dict[str, np.ndarray], dict], None, None]:
     if backend is not None:
         from gpc.harness import ray_backend
 
@@ -316,7 +316,7 @@ def _results(args: list, workers: int, backend: Any = None) -> Iterator[tuple[di
         yield from interrupts.polled(pool, pool.imap(_run_one, args, chunksize=1))
 
 
-def _closed_loop(job: CollectJob, todo: list[int]) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+def _closed_loop(job: CollectJob, todo: list[int]) -> Generator[tuple[dict[str, np.ndarray], dict], None, None]:
     """The controller's episodes of the ``todo`` seeds, in seed order. Lockstep groups are cut from all the job's
     seeds, as ``gpc eval`` cuts them, so a resumed job runs each episode exactly as an uninterrupted one would."""
     config = EvalConfig(seeds=tuple(job.seeds), task=job.task, goal=job.goal, max_steps=job.steps, batch=job.batch,

@@ -16,7 +16,7 @@ import multiprocessing as mp
 import statistics
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -249,7 +249,7 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     return result
 
 
-def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
+def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Generator[dict[str, Any], None, None]:
     """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes
     (Ray actors with ``config.backend``)."""
     if config.backend is not None:

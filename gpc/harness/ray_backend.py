@@ -146,7 +146,7 @@ class Worker:
         return _run_one(args)
 
 
-def _no_controller() -> None:
+def _no_controller() -> Any:
     """Scripted collection needs no controller."""
     return None
 
