@@ -23,7 +23,7 @@ from gpc.harness.evaluation import EvalConfig, evaluate
 from gpc.harness.recipes import make_recipe
 from gpc.harness.results import run_into
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.slow]  # Ray's start-up: make test runs them, test-fast not
 SEEDS = tuple(range(100000, 100008))
 
 
