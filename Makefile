@@ -7,6 +7,11 @@ STAMP := $(VENV)/.gpc-installed
 # The CPU build of torch; a plain `torch` requirement could pull a multi-GB CUDA build.
 TORCH_SPEC ?= torch==2.13.0
 WORKERS ?= 2
+# BACKEND=ray: the collect, record and eval stages run on Ray (RAY_ADDRESS=HOST:PORT: a running cluster; default: one
+# started per command on this machine); the results are the local backend's (docs/scale-out.md).
+BACKEND ?= local
+RAY_ADDRESS ?=
+SCALE := --backend $(BACKEND)$(if $(RAY_ADDRESS), --ray-address $(RAY_ADDRESS))
 # make test: pytest processes, one torch thread each (the suite is mostly single-threaded subprocesses).
 TEST_WORKERS ?= 2
 # TASK: the task a pipeline runs (pusht, swap, draw, or one of yours named in GPC_TASKS); its runs and results folders are its own.
@@ -203,7 +208,7 @@ help:
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
 	@echo "make check-sim         replay and render the shared human data through our simulator"
 	@echo "make venv | lint | types | clean   the virtual environment alone; ruff; mypy; remove .venv, runs/ and results/"
-	@echo "options for every pipeline: SEEDS=START:STOP (test seeds), WORKERS=N (evaluation processes), RUN_DIR, RESULTS"
+	@echo "options for every pipeline: SEEDS=START:STOP (test seeds), WORKERS=N (evaluation processes), BACKEND=ray [RAY_ADDRESS=HOST:PORT], RUN_DIR, RESULTS"
 
 venv: $(STAMP)
 
@@ -248,18 +253,18 @@ WM_CKPT := $(WM_RUN)-phase2/checkpoints/last.ckpt
 TABLE := $(if $(filter cpu1fixed,$(PROFILE)$(EXPLORE)$(GOAL)),results/$(TASK)_state.md,$(RESULTS)/$(TASK)_state.md)
 
 $(RUN_DIR)/expert.done: | $(STAMP)
-	$(BIN)/gpc collect --task $(TASK) --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS)
+	$(BIN)/gpc collect --task $(TASK) --out $(RUN_DIR)/expert.zarr --episodes $(EXPERT_EPISODES) --seed 0 --workers $(WORKERS) $(SCALE)
 	$(BIN)/gpc data info $(RUN_DIR)/expert.zarr
 	touch $@
 
 $(RUN_DIR)/explore.done: | $(STAMP)
-	$(BIN)/gpc collect --task $(TASK) --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS)
+	$(BIN)/gpc collect --task $(TASK) --explore --out $(RUN_DIR)/explore.zarr --episodes $(EXPLORE_EPISODES) --seed 50000 --workers $(WORKERS) $(SCALE)
 	$(BIN)/gpc data info $(RUN_DIR)/explore.zarr
 	touch $@
 
 $(RUN_DIR)/expert-random-goal.done: | $(STAMP)
 	$(BIN)/gpc collect --task $(TASK) --goal random --no-images --out $(RUN_DIR)/expert-random-goal.zarr --episodes $(EXPERT_EPISODES) \
-	  --seed 0 --workers $(WORKERS)
+	  --seed 0 --workers $(WORKERS) $(SCALE)
 	$(BIN)/gpc data info $(RUN_DIR)/expert-random-goal.zarr
 	touch $@
 
@@ -288,7 +293,7 @@ $(WM_RUN)-phase2.done: $(WM_RUN)-phase1.done
 # set (or, unstamped, read from the results it holds) and another one refused; order-only, so it never makes one stale.
 define eval_rule
 $(2)/$(1)/summary.json: $(3) | $(2)/.seeds-$(subst :,-,$(5))
-	$(BIN)/gpc eval $(4) --workers $(WORKERS) --out $(2)/$(1) --resume --overwrite
+	$(BIN)/gpc eval $(4) --workers $(WORKERS) $(SCALE) --out $(2)/$(1) --resume --overwrite
 endef
 .seeds-%:
 	@$(BIN)/python -c 'import json, pathlib, sys; folder, want = pathlib.Path(sys.argv[1]), sys.argv[2].replace("-", ":"); \
@@ -383,7 +388,7 @@ VRECORDED := $(VWM_RUN)-opt-episodes.zarr
 VONPOLICY_CKPT := $(VWM_RUN)-onpolicy/checkpoints/last.ckpt
 $(VWM_RUN)-opt-episodes.done: $(RUN_DIR)/vpolicy.done $(VWM_RUN)-1step.done $(RUN_DIR)/reward.done
 	$(BIN)/gpc record $(VPOLICY_CKPT) $(ARGS.$(VRECORD)) --world-model $(VSTUDENT_CKPT) --reward learned \
-	  --reward-checkpoint $(REWARD_CKPT) --precision $(VPRECISION) $(VRECORD_ARGS) --workers $(WORKERS) --out $(VRECORDED)
+	  --reward-checkpoint $(REWARD_CKPT) --precision $(VPRECISION) $(VRECORD_ARGS) --workers $(WORKERS) $(SCALE) --out $(VRECORDED)
 	touch $@
 
 $(VWM_RUN)-onpolicy.done: $(VWM_RUN)-opt-episodes.done $(VWM_RUN)-phase2.done

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
+from gpc.cli.backend import backend_from_options, with_backend_options
 from gpc.cli.eval_cmd import Checkpoint, Goal, PlannerKind, Threads, recipe_from_options, with_planning_options
 from gpc.cli.limits import MAX_COUNT, MAX_PROCESSES, MAX_SEED
 from gpc.tasks import DEFAULT_TASK
@@ -19,11 +20,12 @@ if TYPE_CHECKING:
 Out = typer.Option(..., "--out", "-o", help="Zarr store to create or resume (a directory).")
 Episodes = typer.Option(100, "--episodes", "-n", min=1, max=MAX_COUNT, help="Number of episodes (seeds SEED .. SEED+N-1).")
 FirstSeed = typer.Option(0, "--seed", min=0, max=MAX_SEED, help="First environment seed; keep clear of the test seeds (100000+).")
-Workers = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Parallel worker processes; the store is identical for any count.")
+Workers = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Parallel worker processes (Ray workers with --backend ray); the store is identical for any count.")
 MaxSteps = typer.Option(None, "--max-steps", min=1, max=MAX_COUNT, help="Steps per episode at most (default: the task's episode length).")
 Overwrite = typer.Option(False, "--overwrite", help="Replace an existing store instead of resuming it.")
 
 
+@with_backend_options
 def collect(
     out: Path = Out,
     explore: bool = typer.Option(False, "--explore", help="Collect contact-rich exploration data instead of expert demonstrations."),
@@ -35,19 +37,23 @@ def collect(
     images: bool = typer.Option(True, "--images/--no-images", help="Store the camera's frames (key img)."),
     max_steps: int | None = MaxSteps,
     overwrite: bool = Overwrite,
+    scale: dict | None = None,
 ) -> None:
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
     from gpc.harness.collection import CollectJob
 
+    backend = backend_from_options(scale)
     _run(CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes, seed=seed,
-                    workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite))
+                    workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite, backend=backend))
 
 
+@with_backend_options
 @with_planning_options
 def record(
     checkpoint: Checkpoint,
     planner: PlannerKind = "bc",
     planning: dict | None = None,
+    scale: dict | None = None,
     out: Path = Out,
     episodes: int = Episodes,
     seed: int = FirstSeed,
@@ -65,10 +71,12 @@ def record(
     from gpc.harness.collection import CLOSED_LOOP, CollectJob
 
     assert planning is not None  # with_planning_options passes them
-    recipe = recipe_from_options(checkpoint, planner, planning, goal)
+    backend = backend_from_options(scale, planning["device"])
+    recipe = recipe_from_options(checkpoint, planner, planning, goal, remote=backend is not None)
     assert recipe.task is not None  # make_recipe names the task
     _run(CollectJob(out=out, task=recipe.task, kind=CLOSED_LOOP, episodes=episodes, seed=seed, workers=workers,
-                    goal=goal, max_steps=max_steps, overwrite=overwrite, controller=recipe, batch=batch, threads=threads))
+                    goal=goal, max_steps=max_steps, overwrite=overwrite, controller=recipe, batch=batch, threads=threads,
+                    backend=backend))
 
 
 def _run(job: CollectJob) -> None:

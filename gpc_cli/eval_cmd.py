@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from gpc.cli.backend import backend_from_options, cluster_bar, with_backend_options
 from gpc.cli.groups import DefaultToRun
 from gpc.cli.limits import MAX_COUNT, MAX_PROCESSES, MAX_SEED
 from gpc.cli.run_options import with_shared_options
@@ -33,6 +34,7 @@ VlmUrl = Annotated[str | None, typer.Option("--vlm-base-url", help="--reward vlm
 VlmModel = Annotated[str | None, typer.Option("--vlm-model", help="--reward vlm: the model name the endpoint serves.")]
 Method = Annotated[str | None, typer.Option("--method", help="ddim or ddpm (default: the checkpoint's).")]
 Steps = Annotated[int | None, typer.Option("--steps", min=1, max=MAX_COUNT, help="Denoising steps (default: the checkpoint's).")]
+Device = Annotated[str, typer.Option("--device", help="Where the policy, world model and reward run: cpu or cuda (with --backend ray: on the workers).")]
 RolloutPrecision = Annotated[str, typer.Option("--precision", help="The world model's rollouts: bf16-auto (bf16 where the model asks for it and the hardware computes it), 32-true (float32 on every machine: the same numbers) or bf16-mixed.")]
 ActionSteps = Annotated[int | None, typer.Option("--action-steps", min=1, max=MAX_COUNT, help="Planners: actions executed per decision (default: the policy's n_action_steps; at most the chunk the planner scores).")]
 PolicyFormat = Annotated[str | None, typer.Option("--policy-format", help="gpc, lerobot or diffusion_policy (default: detected).")]
@@ -51,18 +53,24 @@ PLANNING_OPTIONS = (
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),
     ("spacing", Spacing, None), ("policy_format", PolicyFormat, None), ("task", PolicyTask, None),
-    ("action_steps", ActionSteps, None), ("precision", RolloutPrecision, "bf16-auto"),
+    ("action_steps", ActionSteps, None), ("precision", RolloutPrecision, "bf16-auto"), ("device", Device, "cpu"),
 )
 with_planning_options = with_shared_options(PLANNING_OPTIONS, "planning")
 
 
 def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: str, keep_futures: bool = False,
-                        vlm_cache: Path | None = None):
-    """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``)."""
+                        vlm_cache: Path | None = None, remote: bool = False):
+    """The controller recipe the options describe (``gpc.harness.recipes.make_recipe``); ``remote``: it runs on
+    Ray workers, whose GPUs this machine need not have."""
     from gpc.harness.recipes import ASCENT_DEFAULTS, RewardSpec, make_recipe
     from gpc.models.planning.config import SamplingConfig
 
     o = planning
+    if o["device"] == "cuda" and not remote:
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ValueError("--device cuda: torch sees no CUDA GPU on this machine (use --device cpu, or --backend ray with GPU workers)")
     vlm = None
     if o["reward"] == "vlm":
         from gpc.models.rewards.vlm import VLMConfig
@@ -75,19 +83,21 @@ def recipe_from_options(checkpoint: Path, planner: str, planning: dict, goal: st
                        reward=RewardSpec(o["reward"], o["reward_aggregate"], o["reward_checkpoint"], vlm),
                        sampling=SamplingConfig(o["method"], o["steps"], o["spacing"]), goal=goal,
                        keep_futures=keep_futures, task=o["task"], policy_format=o["policy_format"],
-                       action_steps=o["action_steps"], precision=o["precision"])
+                       action_steps=o["action_steps"], precision=o["precision"], device=o["device"])
 
 
 @eval_app.command("run")
+@with_backend_options
 @with_planning_options
 def eval_run(
     checkpoint: Checkpoint,
     planner: PlannerKind = "bc",
     planning: dict | None = None,
+    scale: dict | None = None,
     seeds: str = typer.Option("100000:100050", "--seeds", help="Seed range START:STOP (stop excluded) or a list."),
     out: Path = typer.Option(Path("results/eval"), "--out", "-o", help="Directory for episodes.json, summary.json, summary.md, videos."),
     sampling_seeds: str = typer.Option("0", "--sampling-seeds", help="Sampling seed(s), e.g. 0,1,2: each seeds every episode's random stream (with its env seed); several give the spread."),
-    workers: int = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Processes; results are identical for any count."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, max=MAX_PROCESSES, help="Processes (Ray workers with --backend ray); results are identical for any count."),
     batch: int = typer.Option(25, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep per controller call."),
     threads: Threads = 1,
     goal: Goal = "fixed",
@@ -104,12 +114,19 @@ def eval_run(
     from gpc.harness.results import check_eval, check_out, run_eval
 
     assert planning is not None  # with_planning_options passes them
+    backend = backend_from_options(scale, planning["device"])
     check_out(out)
     samplings, test_seeds = parse_seeds(sampling_seeds, "--sampling-seeds"), tuple(parse_seeds(seeds))
-    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache")
+    recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=videos > 0, vlm_cache=out / "vlm_cache",
+                                 remote=backend is not None)
     config = EvalConfig(seeds=test_seeds, task=recipe.task, goal=goal, max_steps=max_steps, batch=batch, workers=workers,
-                        threads=threads, video_dir=str(out / "videos") if videos else None, videos=videos)
+                        threads=threads, video_dir=str(out / "videos") if videos else None, videos=videos, backend=backend)
     check_eval(out, recipe, config, samplings, resume, overwrite)  # before the bar: a refusal prints one line
+    if backend is not None:
+        with cluster_bar(recipe.label, len(test_seeds) * len(samplings)) as advance:
+            run_eval(out, recipe, config, samplings, resume, overwrite, on_group=advance)
+        typer.echo((out / "summary.md").read_text())
+        return
     with Progress() as bar:
         tid = bar.add_task(recipe.label, total=len(test_seeds) * len(samplings))
         run_eval(out, recipe, config, samplings, resume, overwrite, on_group=lambda g: bar.advance(tid, len(g["episodes"])))

@@ -15,7 +15,8 @@ import multiprocessing as mp
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -56,6 +57,7 @@ class CollectJob:
     controller: Any = None  # closed-loop: a picklable recipe (``gpc.harness.recipes.PlannerRecipe``)
     batch: int = 25  # closed-loop: episodes stepped in lockstep per controller call (gpc eval's default)
     threads: int = 1  # closed-loop: torch threads per process (as in ``gpc eval``, the episodes depend on it)
+    backend: Any = None  # None: local processes; a ``ray_backend.RayOptions``: Ray actors (the same store)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)  # raises for an unknown task
@@ -271,22 +273,23 @@ def _collect_into(job: CollectJob, made: Fresh, on_start: Callable[[int], None] 
     if on_start:
         on_start(len(job.seeds) - len(todo))
     args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
-    episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers)
+    episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers, job.backend)
     stats: list[dict] = []
     try:
-        for data, st in episodes:
-            try:
-                store.append_episode(data, seed=st["seed"], score=st["score"])
-            except OSError as exc:  # a full disk: the episode being written is not committed
-                kept = (f"{out} is unchanged" if replacing else f"{out} is not kept (no episode was written)"
-                        if made.new and not made.kept else f"{store.n_episodes} whole episodes are kept in {out}")
-                raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
-            if not replacing:
-                made.keep()  # a store holding an episode is a result: never removed
-            stats.append(st)
-            if on_episode:
-                on_episode(st)
-            interrupts.check()
+        with closing(episodes) as each:  # a stop between episodes ends the workers now
+            for data, st in each:
+                try:
+                    store.append_episode(data, seed=st["seed"], score=st["score"])
+                except OSError as exc:  # a full disk: the episode being written is not committed
+                    kept = (f"{out} is unchanged" if replacing else f"{out} is not kept (no episode was written)"
+                            if made.new and not made.kept else f"{store.n_episodes} whole episodes are kept in {out}")
+                    raise DataError(f"{out}: cannot be written ({exc.strerror or exc}); {kept}") from None
+                if not replacing:
+                    made.keep()  # a store holding an episode is a result: never removed
+                stats.append(st)
+                if on_episode:
+                    on_episode(st)
+                interrupts.check()
     except interrupts.Interrupted as stop:
         stop.kept = (f"{out} is unchanged (its replacement was stopped; run the same command to start it again)"
                      if replacing else f"{store.n_episodes} whole episodes are in {out} (run the same command to resume)")
@@ -300,7 +303,12 @@ def _init_worker(tasks: Sequence[Task]) -> None:
         register_task(task)
 
 
-def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+def _results(args: list, workers: int, backend: Any = None) -> Generator[tuple[dict[str, np.ndarray], dict], None, None]:
+    if backend is not None:
+        from gpc.harness import ray_backend
+
+        yield from ray_backend.map_episodes(args, workers, backend)
+        return
     if workers == 1 or len(args) <= 1:
         yield from map(_run_one, args)
         return
@@ -308,11 +316,11 @@ def _results(args: list, workers: int) -> Iterator[tuple[dict[str, np.ndarray], 
         yield from interrupts.polled(pool, pool.imap(_run_one, args, chunksize=1))
 
 
-def _closed_loop(job: CollectJob, todo: list[int]) -> Iterator[tuple[dict[str, np.ndarray], dict]]:
+def _closed_loop(job: CollectJob, todo: list[int]) -> Generator[tuple[dict[str, np.ndarray], dict], None, None]:
     """The controller's episodes of the ``todo`` seeds, in seed order. Lockstep groups are cut from all the job's
     seeds, as ``gpc eval`` cuts them, so a resumed job runs each episode exactly as an uninterrupted one would."""
     config = EvalConfig(seeds=tuple(job.seeds), task=job.task, goal=job.goal, max_steps=job.steps, batch=job.batch,
-                        workers=job.workers, threads=job.threads, record=True)
+                        workers=job.workers, threads=job.threads, record=True, backend=job.backend)
     wanted = set(todo)
     jobs = [(group, config) for group in config.groups() if wanted & set(group)]
     for group in map_groups(job.controller, jobs, config):

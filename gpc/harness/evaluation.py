@@ -16,7 +16,8 @@ import multiprocessing as mp
 import statistics
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,7 @@ class EvalConfig:
     videos: int = 0  # MP4s for the first N seeds (with the planned chunk drawn)
     video_size: int = 384
     record: bool = False  # keep every episode's steps in the task's store layout (`gpc record`)
+    backend: Any = None  # None: local processes; a ``ray_backend.RayOptions``: actors on a Ray cluster (same results)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)
@@ -234,11 +236,12 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     jobs = [(g, config) for g in config.groups() if tuple(int(s) for s in g) not in have]
     groups: list[dict[str, Any]] = list(finished)
     if jobs:
-        for group in map_groups(factory, jobs, config):
-            groups.append(group)
-            if on_group:
-                on_group(group)
-            interrupts.check()
+        with closing(map_groups(factory, jobs, config)) as done:  # a stop between groups ends the workers now
+            for group in done:
+                groups.append(group)
+                if on_group:
+                    on_group(group)
+                interrupts.check()
     result = summarize(groups, time.perf_counter() - t0, config)
     summary = getattr(factory, "summary", None)  # a PlannerRecipe says what it built
     if callable(summary):
@@ -246,8 +249,14 @@ def evaluate(factory: Callable[[], Controller], config: EvalConfig,
     return result
 
 
-def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Iterator[dict[str, Any]]:
-    """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes."""
+def map_groups(factory: Callable[[], Controller], jobs: list, config: EvalConfig) -> Generator[dict[str, Any], None, None]:
+    """Each ``(seeds, config)`` job run as one lockstep group (``run_group``), in order, in ``config.workers`` processes
+    (Ray actors with ``config.backend``)."""
+    if config.backend is not None:
+        from gpc.harness import ray_backend
+
+        yield from ray_backend.map_groups(factory, jobs, config)
+        return
     if config.workers == 1 or len(jobs) == 1:
         previous = torch.get_num_threads()
         _init_worker(factory, config.threads)

@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # `gpc compare` reads identities without importing torch
     from gpc.harness.evaluation import EvalConfig
     from gpc.harness.recipes import PlannerRecipe
 
-NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size")  # settings the scores do not depend on
+NOT_IDENTITY = ("workers", "video_dir", "videos", "video_size", "backend")  # settings the scores do not depend on
 # What makes two runs' episodes the same episodes, so that they pair seed by seed (summary field, its option);
 # the rest of the identity is the controller's (another controller is another row of a comparison).
 EPISODE_SETTINGS = (("task", "task"), ("goal", "--goal"), ("max_steps", "--max-steps"), ("sampling_seed", "--sampling-seeds"),

@@ -35,6 +35,7 @@ LATER_DEFAULTS = {"action_steps": None, "knots": 0}
 # The VLM settings that change its answers (not where it is served, its key, time-outs or cache), each left out at its default.
 VLM_IDENTITY = ("model", "temperature", "prompt", "frame_size", "columns", "max_tokens")
 DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
+DEVICES = ("cpu", "cuda")  # where the controller's networks run (--device)
 
 
 @dataclass(frozen=True)
@@ -57,16 +58,16 @@ class RewardSpec:
             raise ValueError("--reward vlm needs --vlm-base-url and --vlm-model")
 
 
-def load_world_model(path: str, task: Task) -> Any:
-    """The task's ground-truth simulator for ``gt-sim``, else a world-model checkpoint of the task (state or image)."""
+def load_world_model(path: str, task: Task, device: str = "cpu") -> Any:
+    """The task's ground-truth simulator for ``gt-sim``, else a world-model checkpoint of the task (state or image) on ``device``."""
     if path == GT_SIM:
         return task.simulator()
-    from gpc.models.world_models.module import load_world_model as load
+    from gpc.models.world_models.module import WorldModelModule
 
-    return load(path, task.name)
+    return WorldModelModule.load_from_checkpoint(path, map_location=device, task=task.name).to(device)
 
 
-def build_reward(spec: RewardSpec, task: Task) -> Any:
+def build_reward(spec: RewardSpec, task: Task, device: str = "cpu") -> Any:
     """The task's own reward on predicted states (``Task.state_reward``: Push-T's registration of its objects), or a
     learned / VLM one (the state reward is the VLM's fallback)."""
     from gpc.models.rewards.registration import RewardConfig
@@ -77,12 +78,12 @@ def build_reward(spec: RewardSpec, task: Task) -> Any:
     config = RewardConfig(aggregate=spec.aggregate)
     registration = state_reward(task.state_reward, task.layout, config)
     if spec.kind == "registration":
-        return registration
+        return _on(registration, device)
     if spec.kind == "learned":
         from gpc.models.rewards.learned import ImageReward
 
         assert spec.checkpoint is not None  # RewardSpec refuses a learned reward without one
-        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.goal, config, task=task.name)
+        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.goal, config, map_location=device, task=task.name).to(device)
     from gpc.models.rewards.vlm import VLMReward
 
     return VLMReward(spec.vlm, render=task.render_state, fallback=registration, task_description=task.description)
@@ -101,9 +102,12 @@ class PlannerRecipe:
     policy_format: str | None = None  # gpc | lerobot | diffusion_policy (None: detected)
     precision: str = "bf16-auto"  # the world model's rollouts (networks.precision.ROLLOUT_PRECISIONS)
     rollouts: str = "float32"  # the dtype they run in here, as make_recipe found it: results record it (bf16 changes the numbers)
+    device: str = "cpu"  # where the networks load and run (DEVICES)
 
     def __post_init__(self) -> None:
         check_rollout_precision(self.precision)
+        if self.device not in DEVICES:
+            raise ValueError(f"--device {self.device!r}: use one of {', '.join(DEVICES)}")
         if self.planner is not None and not self.world_model:
             raise ValueError(f"--planner {self.planner.kind} needs --world-model CKPT (or --world-model {GT_SIM})")
         if self.world_model == GT_SIM and self.planner is not None and self.planner.uses_gradients:
@@ -130,23 +134,25 @@ class PlannerRecipe:
         from gpc.models.planning.loading import check_pairing
         from gpc.models.planning.planner import Planner
 
-        policy = load_policy(self.policy, self.task, self.policy_format)
+        policy = load_policy(self.policy, self.task, self.policy_format, map_location=self.device).to(self.device)
         if self.planner is None:
             return PolicyController(policy, self.sampling)
         assert self.world_model is not None
         task = get_task(policy.config.task)
-        world_model = load_world_model(self.world_model, task)
+        world_model = load_world_model(self.world_model, task, self.device)
         check_pairing(policy, world_model, self.world_model)
         if hasattr(world_model, "set_rollout_precision"):  # the simulator (gt-sim) has none
             world_model.set_rollout_precision(self.precision)
         box = task.layout.action
         config = dataclasses.replace(self.planner, action_low=box.low, action_high=box.high)
-        return Planner(config, world_model, build_reward(self.reward, task), policy, self.sampling)
+        return Planner(config, world_model, build_reward(self.reward, task, self.device), policy, self.sampling)
 
     def summary(self) -> dict[str, Any]:
         """What a results file records about the controller: every setting its numbers depend on
         (``gpc.harness.identity``), those added later left out at their defaults."""
         out: dict[str, Any] = {"controller": self.label, "policy": self.policy}
+        if self.device != "cpu":  # left out on the CPU, where every result before this setting ran
+            out["device"] = self.device
         if self.policy_format not in (None, "gpc"):
             out["policy_format"] = self.policy_format
         if self.sampler():
@@ -170,13 +176,15 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
                 m: int | None = None, lr: float = 2.0, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
                 sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
                 task: str | None = None, policy_format: str | None = None, action_steps: int | None = None,
-                precision: str = "bf16-auto") -> PlannerRecipe:
+                precision: str = "bf16-auto", device: str = "cpu") -> PlannerRecipe:
     """The controller a command line describes: ``planner`` is ``bc``, ``gt-sim`` or a ``PlannerConfig`` kind.
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
     ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``,
     ``knots``). ``precision``: the world model's rollouts (``bf16-auto``, ``32-true``, ``bf16-mixed``).
+    ``device``: where the networks run (``cpu``, ``cuda``); checked here on the CPU when this machine has no GPU
+    (a Ray cluster's workers may have them).
     The checkpoints are opened and the controller built once here, so a mismatched world model,
     reward or goal mode fails now, in one line, before any episode runs.
     """
@@ -209,7 +217,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     if planner == BC:
         if world_model or k or m or action_steps:
             raise ValueError("--world-model, --K, --M and --action-steps apply to a --planner (bc is the policy alone)")
-        return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format, precision=precision)
+        return PlannerRecipe(str(policy), sampling=sampling, task=chosen.name, policy_format=policy_format, precision=precision,
+                             device=device)
     kind = "rank" if planner == GT_SIM else planner
     if planner == GT_SIM:
         if world_model not in (None, GT_SIM):
@@ -221,8 +230,22 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
                            action_low=box.low, action_high=box.high, keep_futures=keep_futures, action_steps=action_steps,
                            **(ascent or {}))
 
-    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format, precision)
-    controller = recipe()  # build it once here: a mismatched world model or reward fails now, in one line
+    recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format, precision, device=device)
+    here = device if device == "cpu" or _cuda() else "cpu"
+    controller = dataclasses.replace(recipe, device=here)()  # built once here: a mismatched world model or reward fails now, in one line
     set_precision = getattr(getattr(controller, "world_model", None), "set_rollout_precision", None)  # not BC's, nor gt-sim's
     rollouts = set_precision(precision) if set_precision is not None else "float32"
     return dataclasses.replace(recipe, rollouts=rollouts)
+
+
+def _cuda() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
+def _on(reward: Any, device: str) -> Any:
+    """A reward that is a torch module (its vertices and goal) moved to ``device``; any other as it is."""
+    import torch
+
+    return reward.to(device) if isinstance(reward, torch.nn.Module) else reward
