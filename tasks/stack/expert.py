@@ -39,6 +39,12 @@ class ExpertConfig:
                 raise ValueError(f"{name} {lo, hi}: need 0 < low <= high")
 
 
+def step_toward(base: np.ndarray, target: np.ndarray, max_step: float) -> np.ndarray:
+    """``base`` moved toward ``target`` by at most ``max_step`` (m)."""
+    step = target - base
+    return base + step * min(1.0, max_step / max(float(np.linalg.norm(step)), 1e-9))
+
+
 class StackExpert:
     """``act(sim) -> [x, y, z, opening]`` targets; ``reset(seed)`` draws the episode's style."""
 
@@ -55,10 +61,7 @@ class StackExpert:
         self.phase, self.timer, self.command = APPROACH, 0, None
 
     def _move(self, hand: np.ndarray, target: np.ndarray, noisy: bool) -> np.ndarray:
-        base = hand if self.command is None else self.command
-        step = target - base
-        step *= min(1.0, self.max_step / max(float(np.linalg.norm(step)), 1e-9))
-        out = base + step
+        out = step_toward(hand if self.command is None else self.command, target, self.max_step)
         if noisy:
             out = out + self.rng.normal(0.0, self.config.noise, 3)
         self.command = out

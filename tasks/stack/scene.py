@@ -66,7 +66,7 @@ MJCF = f"""
 <mujoco model="gpc-stack">
   <option timestep="{TIMESTEP}" cone="elliptic" impratio="10" integrator="implicitfast"/>
   <visual><headlight ambient="0.35 0.35 0.35" diffuse="0.55 0.55 0.55" specular="0 0 0"/></visual>
-  <default><geom friction="1 0.005 0.0001" condim="4"/></default>
+  <default><geom friction="1 0.005 0.0001" condim="4" solref="0.01 1"/></default>
   <worldbody>
     <light directional="true" pos="0 0 1" dir="0 0 -1" diffuse="0.3 0.3 0.3" specular="0 0 0" castshadow="false"/>
     <geom name="table" type="box" size="{TABLE_HALF} {TABLE_HALF} 0.02" pos="0 0 -0.02" rgba="{_vec(TABLE_RGBA)} 1"/>
@@ -83,9 +83,9 @@ MJCF = f"""
     </body>
   </worldbody>
   <actuator>
-    <position name="x" joint="x" kp="400" kv="40" forcerange="-30 30"/>
-    <position name="y" joint="y" kp="400" kv="40" forcerange="-30 30"/>
-    <position name="z" joint="z" kp="400" kv="40" forcerange="-30 30"/>
+    <position name="x" joint="x" kp="400" kv="40" forcerange="-15 15"/>
+    <position name="y" joint="y" kp="400" kv="40" forcerange="-15 15"/>
+    <position name="z" joint="z" kp="400" kv="40" forcerange="-15 15"/>
     <position name="left" joint="left" kp="300" kv="5" forcerange="-6 6"/>
     <position name="right" joint="right" kp="300" kv="5" forcerange="-6 6"/>
   </actuator>
