@@ -93,6 +93,8 @@ MJCF = f"""
 """
 
 _STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+# MuJoCo's warnings that it met a non-finite state and reset the data (counted since the last set_state or restore)
+_DIVERGED = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 
 
 class StackSim:
@@ -180,8 +182,9 @@ class StackSim:
 
     def unstable(self) -> str | None:
         """Why the simulation can no longer be trusted (NaN, a penetration over 1 cm, a cube off the table), or None."""
-        if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
-            return "NaN in the simulation state"
+        if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))) or any(
+                self.data.warning[w].number for w in _DIVERGED):
+            return "the simulation diverged (NaN or infinite state; MuJoCo reset it)"
         if self.data.ncon and float(np.min(self.data.contact.dist[: self.data.ncon])) < -0.01:
             return "bodies interpenetrate by more than 1 cm"
         if min(self.data.qpos[adr + 2] for adr in self._cubes) < -HALF:
