@@ -16,6 +16,7 @@ RUN_DIR ?= runs/$(TASK)-$(PROFILE)
 POLICY_OBS.pusht := keypoints
 TITLE.pusht := Push-T
 TITLE.swap := Cube & Sphere Swapping
+TITLE.stack := Block Stacking
 PAPER_STATE.pusht := --paper pusht-state
 POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
 TITLE := $(or $(TITLE.$(TASK)),$(TASK))

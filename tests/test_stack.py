@@ -112,7 +112,8 @@ def test_reward_geometry() -> None:
     assert geometry.reward(batch).shape == (2,)
 
 
-def test_unstable_simulation_truncates_with_zero_reward() -> None:
+def test_unstable_simulation_truncates_with_zero_reward(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the divergence to ./MUJOCO_LOG.TXT
     env = StackEnv()
     env.reset(seed=2)
     vector = env.sim.vector()

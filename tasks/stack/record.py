@@ -1,7 +1,8 @@
 """Recording stacking episodes in the store layout every task uses (the loop is ``gpc.tasks.planar.record``'s).
 
-Each step stores what was observed before acting: ``state`` (18), ``img`` (96x96x3 uint8), the ``action`` (4) and
-``n_contacts`` (1: how many of the pairs gripper-red, gripper-blue, red-blue touched) of the step that led to it.
+Each step stores what was observed before acting: ``state`` (18), ``goal`` (2: the red cube's target on the table
+plane, the blue cube's x, y, which moves with it), ``img`` (96x96x3 uint8), the ``action`` (4) and ``n_contacts`` (1:
+how many of the pairs gripper-red, gripper-blue, red-blue touched) of the step that led to it.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ class RecordConfig:
 def observe(env: StackEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
     """One step's observation in the data layout; ``sim`` adds MuJoCo's full state (never recorded) that the
     ground-truth world model restores from."""
-    obs = {"state": env.sim.state().astype(np.float32)}
+    state = env.sim.state()
+    obs = {"state": state.astype(np.float32), "goal": state[geometry.BLUE][:2].astype(np.float32)}
     if images:
         obs["img"] = env.render()
     if sim:
