@@ -50,6 +50,7 @@ class StackExpert:
 
     def __init__(self, config: ExpertConfig = ExpertConfig()) -> None:
         self.config = config
+        self.command: np.ndarray | None = None  # the last target sent (moves start from it, not from the lagging hand)
         self.reset(0)
 
     def reset(self, seed: int) -> None:
@@ -108,7 +109,7 @@ class StackExpert:
                 self.phase, self.timer = CARRY, 0
             return pos, 0.0
         if self.phase == CARRY:
-            pos = self._move(hand, np.array([over[0], over[1], self.carry]), noisy=np.linalg.norm(red[:2] - blue[:2]) > 0.03)
+            pos = self._move(hand, np.array([over[0], over[1], self.carry]), noisy=bool(np.linalg.norm(red[:2] - blue[:2]) > 0.03))
             if np.linalg.norm(red[:2] - blue[:2]) < c.aligned:
                 self.phase, self.timer = LOWER, 0
             return pos, 0.0
