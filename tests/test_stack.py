@@ -201,3 +201,35 @@ def test_own_renderer_matches_mujoco_where_opengl_exists() -> None:
     for frame in result["frames"]:
         # mean absolute difference of 0.1-0.4 of 255 measured; cubes of ~20 px agree to a fraction of a pixel
         assert frame["mad"] < 1.5 and min(frame["iou"]) > 0.7 and max(frame["centroid_px"]) < 0.5, frame
+
+
+def test_planning_reward_is_the_env_reward_before_clipping_and_differentiable() -> None:
+    import torch
+
+    from gpc.models.rewards.state import state_reward
+    from gpc.tasks import get_task
+
+    task = get_task("stack")
+    reward = state_reward(task.state_reward, task.layout)  # named by module: imported and registered on first use
+    states = np.stack([initial_scene(seed) for seed in range(6)])
+    states[3, geometry.RED] = states[3, geometry.BLUE] + [0.004, 0.0, CUBE_SIDE]
+    futures = torch.tensor(states, dtype=torch.float64)[:, None].repeat(1, 3, 1).requires_grad_(True)
+    scores = reward(futures)
+    np.testing.assert_allclose(np.clip(1 + scores.detach().numpy(), 0, 1), geometry.reward(states), atol=1e-3)
+    scores.sum().backward()
+    assert futures.grad is not None and torch.isfinite(futures.grad).all() and futures.grad[:, -1].abs().sum() > 0
+
+
+def test_ground_truth_world_model_replays_the_env_exactly() -> None:
+    from gpc.tasks import get_task
+
+    task = get_task("stack")
+    env = task.make_env("fixed")
+    env.reset(seed=9)
+    obs = task.observe(env, False, True)
+    actions = np.array([[0.02 * t, -0.01 * t, 0.1 - 0.005 * t, 0.06] for t in range(6)])
+    predicted = task.simulator().rollout(obs[task.sim_key][None, None], actions[None]).numpy()[0]
+    truth = [env.step(a)[4]["state"] for a in actions]
+    np.testing.assert_allclose(predicted, np.array(truth, dtype=np.float32), rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"\(K, T, 4\)"):
+        task.simulator().rollout(obs[task.sim_key][None, None], np.zeros((1, 6, 2)))
