@@ -22,6 +22,7 @@ POLICY_OBS.pusht := keypoints
 TITLE.pusht := Push-T
 TITLE.swap := Cube & Sphere Swapping
 TITLE.draw := Triangle Drawing
+TITLE.stack := Block Stacking
 PAPER_STATE.pusht := --paper pusht-state
 # Per task, vision: the paper's vision row (`gpc compare --paper`, the task's PAPER) where it has one.
 PAPER_VISION.pusht := --paper pusht-vision

@@ -21,7 +21,7 @@ from importlib.metadata import entry_points
 from gpc.tasks.base import Task
 
 # name -> module exposing TASK (imported on first use)
-BUILT_IN = {"pusht": "gpc.tasks.pusht", "swap": "gpc.tasks.swap", "draw": "gpc.tasks.draw"}
+BUILT_IN = {"pusht": "gpc.tasks.pusht", "swap": "gpc.tasks.swap", "stack": "gpc.tasks.stack", "draw": "gpc.tasks.draw"}
 DEFAULT_TASK = "pusht"  # what commands act on when no --task is given
 ENV_VAR, ENTRY_POINTS = "GPC_TASKS", "gpc.tasks"
 _REGISTRY: dict[str, Task] = {}

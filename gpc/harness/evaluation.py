@@ -118,7 +118,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                     films[i].extend(_film_frames(task, env, plan, r, j, config.video_size))
                 if recorders:
                     recorders[i].add(hist[i][-1], action)
-                _, reward, terminated, _, info = env.step(np.asarray(action, dtype=np.float64))
+                _, reward, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float64))
                 if recorders:
                     recorders[i].after(info)
                 row = rows[i]
@@ -128,7 +128,9 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                     row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
                 row["success"] = row["success"] or bool(terminated)
                 hist[i].append(observe(env))  # every step: the history is consecutive steps, as in training
-                if terminated or row["steps"] >= (config.max_steps or task.max_episode_steps):
+                if truncated:  # the task's simulation went unstable: the episode ends with its score so far
+                    row["unstable"] = str(info.get("unstable", "truncated"))
+                if terminated or truncated or row["steps"] >= (config.max_steps or task.max_episode_steps):
                     done[i] = True
                     break
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]

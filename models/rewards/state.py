@@ -4,11 +4,14 @@ A task (``gpc.tasks.base.Task.state_reward``) names its reward instead of buildi
 never import ``gpc.models``; the name maps here to a factory of the task's layout and a
 ``RewardConfig``. ``registration`` (the mean over the task's objects of their registration loss
 against the goal) is built in; a task of your own can register another differentiable reward
-(batched futures ``(K, T, D)`` and optional goals ``(K, G)`` in, ``(K,)`` scores out, higher is better).
+(batched futures ``(K, T, D)`` and optional goals ``(K, G)`` in, ``(K,)`` scores out, higher is better),
+or name its factory ``package.module:function``, imported and registered on first use: a task's reward
+then lives beside the task, which imports no ``gpc.models``.
 """
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -25,7 +28,13 @@ def register_state_reward(name: str, factory: StateRewardFactory) -> None:
 
 
 def state_reward(name: str, layout: TaskLayout, config: RewardConfig = RewardConfig()) -> Any:
-    """The reward a task names, for its layout."""
+    """The reward a task names, for its layout (a ``module:function`` name is imported and registered)."""
+    if name not in _FACTORIES and ":" in name:
+        module, _, attr = name.partition(":")
+        try:
+            register_state_reward(name, getattr(importlib.import_module(module), attr))
+        except (ImportError, AttributeError) as exc:
+            raise ValueError(f"task {layout.name}: cannot load state reward {name!r} ({exc})") from None
     if name not in _FACTORIES:
         raise ValueError(f"task {layout.name}: unknown state reward {name!r} (registered: {', '.join(sorted(_FACTORIES))}; "
                          "add yours with gpc.models.rewards.state.register_state_reward)")

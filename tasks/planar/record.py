@@ -34,24 +34,27 @@ class SteppedEnv(Protocol):
 
 
 def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callable[[], dict[str, np.ndarray]], seed: int,
-                max_steps: int, stop_on_success: bool) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    """Step ``env`` with ``act()``'s targets (clipped to the workspace) for at most ``max_steps``; the arrays and their summary.
+                max_steps: int, stop_on_success: bool, low: float | np.ndarray = 0.0,
+                high: float | np.ndarray = WORKSPACE) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Step ``env`` with ``act()``'s targets (clipped to ``[low, high]``, per entry where arrays: the planar
+    workspace by default) for at most ``max_steps``; the arrays and their summary.
 
-    ``terminated`` is success; demonstrations stop there (``stop_on_success``), exploration runs on.
+    ``terminated`` is success; demonstrations stop there (``stop_on_success``), exploration runs on. ``truncated``
+    (a simulation gone unstable) ends the episode with its score so far.
     """
     rows: dict[str, list[np.ndarray]] = {}
     best, success, n_contacts, contacts = 0.0, False, 0, []
     for _ in range(max_steps):
-        action = np.clip(np.asarray(act(), dtype=np.float64), 0.0, WORKSPACE)
+        action = np.clip(np.asarray(act(), dtype=np.float64), low, high)
         step = {**observe(), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
         for key, value in step.items():
             rows.setdefault(key, []).append(value)
-        _, reward, terminated, _, info = env.step(action)
+        _, reward, terminated, truncated, info = env.step(action)
         n_contacts = info["n_contacts"]
         contacts.append(n_contacts > 0)
         best = max(best, reward)
         success = success or terminated
-        if terminated and stop_on_success:
+        if (terminated and stop_on_success) or truncated:
             break
     data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
     return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))

@@ -29,7 +29,7 @@ class ReplayScene(Protocol):
 
 
 class ReplayModel:
-    """``rollout(history (K, H, sim_dim), actions (K, T, 2)) -> (K, T, state_dim)`` states, by exact replay.
+    """``rollout(history (K, H, sim_dim), actions (K, T, action_dim)) -> (K, T, state_dim)`` states, by exact replay.
 
     A task's model gives its private scene and sizes, and says how the scene returns to a ``sim`` vector (``restore``,
     cached contacts forgotten).
@@ -38,8 +38,8 @@ class ReplayModel:
     obs_key = SIM_KEY
     n_obs_steps = 1
 
-    def __init__(self, scene: ReplayScene, sim_dim: int, state_dim: int) -> None:
-        self._sim, self.sim_dim, self.state_dim = scene, sim_dim, state_dim
+    def __init__(self, scene: ReplayScene, sim_dim: int, state_dim: int, action_dim: int = 2) -> None:
+        self._sim, self.sim_dim, self.state_dim, self.action_dim = scene, sim_dim, state_dim, action_dim
 
     def restore(self, vector: np.ndarray) -> None:
         raise NotImplementedError
@@ -49,8 +49,8 @@ class ReplayModel:
 
         history = np.asarray(torch.as_tensor(history).detach().cpu(), dtype=np.float64)
         actions = np.asarray(torch.as_tensor(actions).detach().cpu(), dtype=np.float64)
-        if actions.ndim != 3 or actions.shape[-1] != 2:
-            raise ValueError(f"actions: expected (K, T, 2), got {actions.shape}")
+        if actions.ndim != 3 or actions.shape[-1] != self.action_dim:
+            raise ValueError(f"actions: expected (K, T, {self.action_dim}), got {actions.shape}")
         if history.ndim == 2:
             history = np.broadcast_to(history, (actions.shape[0],) + history.shape)
         if history.ndim != 3 or history.shape[-1] != self.sim_dim or history.shape[0] != actions.shape[0]:
