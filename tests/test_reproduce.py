@@ -29,6 +29,29 @@ def assert_table_is_what_was_measured(table: dict, md: str, runs: list[Path]) ->
         assert f"| {row['label']} | " in md and f"{row['score']:.3f}" in md
 
 
+# Another task's state smoke pipeline ranks, ascends through the task's own reward and replays the ceiling; Push-T's
+# runs every planner (the prior-free ones read nothing task-specific), which keeps `make test` within CI's budget.
+TASK_SMOKE_PLANNERS = {"rank-K4": "rank K=4", "opt-M3": "opt M=3"}
+
+
+def run_state_smoke(task: str, title: str, tmp_path: Path) -> list[str]:
+    """`make reproduce TASK=task PROFILE=smoke` under ``tmp_path``: the stores and the table are the task's, and each row
+    is what its run measured. Returns the make command (its RUN_DIR and RESULTS), for a vision run on the same data."""
+    venv = Path(sys.executable).parent.parent
+    args = ["make", "-s", "reproduce", f"TASK={task}", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={tmp_path / 'runs'}",
+            f"RESULTS={tmp_path / 'results'}", "WORKERS=1", f"PLANNERS={' '.join(TASK_SMOKE_PLANNERS)}"]
+    done = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    for store in ("expert.zarr", "explore.zarr"):
+        assert EpisodeStore.open(tmp_path / "runs" / store).attrs["task"] == task
+    table = json.loads((tmp_path / "results" / f"{task}_state.json").read_text())
+    assert table["task"] == task and [r["label"] for r in table["rows"]] == ["bc", *TASK_SMOKE_PLANNERS.values(), "gt-sim K=4"]
+    md = (tmp_path / "results" / f"{task}_state.md").read_text()
+    assert md.startswith(f"# State {title}, PROFILE=smoke")
+    assert_table_is_what_was_measured(table, md, [tmp_path / "results" / n for n in ("bc", *TASK_SMOKE_PLANNERS, "gt-sim-K4")])
+    return args
+
+
 def run_vision_smoke(args: list[str], tmp_path: Path, task: str) -> tuple[Path, Path, Path]:
     """Run a task's vision smoke pipeline (``args``: the make command, RUN_DIR and RESULTS under ``tmp_path``) and check
     its table and its chain of models; returns (the planners' results, the shared BC and ceiling results, the runs)."""

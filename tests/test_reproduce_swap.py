@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_reproduce import ROOT, assert_table_is_what_was_measured, run_vision_smoke
+from test_reproduce import ROOT, run_state_smoke, run_vision_smoke
 
 from gpc.datasets.store import EpisodeStore
 
@@ -21,19 +21,8 @@ from gpc.datasets.store import EpisodeStore
 def test_the_swap_task_runs_the_same_stages(tmp_path):
     """`make reproduce TASK=swap PROFILE=smoke`, then its vision pipeline: the same stages for a second task, its own
     tables, nothing named Push-T."""
+    args = run_state_smoke("swap", "Cube & Sphere Swapping", tmp_path)
     venv = Path(sys.executable).parent.parent
-    args = ["make", "-s", "reproduce", "TASK=swap", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={tmp_path / 'runs'}",
-            f"RESULTS={tmp_path / 'results'}", "WORKERS=1"]
-    done = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    assert EpisodeStore.open(tmp_path / "runs" / "expert.zarr").attrs["task"] == "swap"
-    table = json.loads((tmp_path / "results" / "swap_state.json").read_text())
-    assert table["task"] == "swap" and [r["label"] for r in table["rows"]] == [
-        "bc", "rank K=4", "opt M=3", "rank-opt 4x3", "cem 8x2", "mppi 8x2", "grad 4x3", "gt-sim K=4"]
-    md = (tmp_path / "results" / "swap_state.md").read_text()
-    assert md.startswith("# State Cube & Sphere Swapping, PROFILE=smoke")
-    assert_table_is_what_was_measured(table, md, [tmp_path / "results" / n for n in (
-        "bc", "rank-K4", "opt-M3", "rank-opt-4x3", "cem-8x2", "mppi-8x2", "grad-4x3", "gt-sim-K4")])
     refused = subprocess.run(["make", "-s", "reproduce-pusht-vision", "TASK=swap", f"VENV={venv}"], cwd=ROOT, capture_output=True,
                              text=True, timeout=60)
     assert refused.returncode != 0 and "are Push-T's spellings; use `make reproduce TASK=swap`" in refused.stderr
