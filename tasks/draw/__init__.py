@@ -18,14 +18,14 @@ import gymnasium as gym
 import numpy as np
 
 from gpc.datasets.layout import ActionBox, FrameLayout, StateLayout, TaskLayout
-from gpc.tasks.base import EpisodeStats, Task
+from gpc.tasks.base import Task
 from gpc.tasks.draw import geometry, render
 from gpc.tasks.draw import record as draw_record
 from gpc.tasks.draw.env import MAX_EPISODE_STEPS, DrawEnv
 from gpc.tasks.draw.sim import STATE_DIM
 from gpc.tasks.draw.sim_model import SIM_KEY, SimulatorModel
 from gpc.tasks.planar.draw import AGENT_EDGE, draw_plan
-from gpc.tasks.planar.record import scripted_params
+from gpc.tasks.planar.record import ScriptedCollectors
 from gpc.tasks.planar.scene import CONTROL_HZ, K_P, K_V, SIM_HZ, WORKSPACE
 
 ENV_ID = "gpc/Draw-v0"
@@ -48,26 +48,9 @@ LAYOUT = TaskLayout(
 PAPER = {"draw-vision": {"bc": 0.724, "rank K=100": 0.767}}
 
 
-def scripted_policy(kind: str) -> Any:
-    """The privileged controller behind ``gpc collect --task draw`` (``expert``) and ``--explore``."""
-    if kind == "expert":
-        from gpc.tasks.draw.expert import DrawExpert
-
-        return DrawExpert()
-    if kind == "explore":
-        from gpc.tasks.draw.explore import ExplorePolicy
-
-        return ExplorePolicy()
-    raise ValueError(f"collector {kind!r}: use expert or explore")
-
-
-def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
-    return scripted_params(scripted_policy(kind), kind, max_steps)
-
-
-def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    config = draw_record.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images)
-    return draw_record.record_episode(scripted_policy(kind), seed, config)
+COLLECTORS = ScriptedCollectors(expert="gpc.tasks.draw.expert:DrawExpert", explore="gpc.tasks.draw.explore:ExplorePolicy",
+                                recorder="gpc.tasks.draw.record")
+scripted_policy = COLLECTORS.policy  # the privileged controller behind `gpc collect --task draw` and `--explore`
 
 
 def env_params(goal: str, max_steps: int) -> dict[str, Any]:
@@ -108,8 +91,8 @@ TASK = Task(
     make_env=make_env,
     observe=draw_record.observe,  # type: ignore[arg-type]
     record_keys=record_keys,
-    record=record,
-    collector_params=collector_params,
+    record=COLLECTORS.record,
+    collector_params=COLLECTORS.params,
     env_params=env_params,
     simulator=SimulatorModel,
     sim_key=SIM_KEY,

@@ -22,16 +22,10 @@ ScriptedPolicy = planar_record.ScriptedPolicy[DrawSim]
 
 
 @dataclass(frozen=True)
-class RecordConfig:
-    """How long episodes run and what is stored."""
+class RecordConfig(planar_record.RecordConfig):
+    """How long episodes run (this task's length by default) and what is stored."""
 
     max_steps: int = MAX_EPISODE_STEPS
-    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
-    images: bool = True
-
-    def __post_init__(self) -> None:
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
 
 
 def observe(env: DrawEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:

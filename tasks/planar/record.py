@@ -7,8 +7,9 @@ builds and resets its environment and its controller, and says how a step is obs
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
@@ -65,3 +66,43 @@ def scripted_params(policy: object, kind: str, max_steps: int) -> dict[str, Any]
     config = getattr(policy, "config", None)
     return {"policy": type(policy).__name__, "config": asdict(config) if config is not None else {},
             "stop_on_success": kind == "expert", "max_steps": max_steps}
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """How long episodes run and what is stored (a task subclasses it for its own episode length)."""
+
+    max_steps: int = 300
+    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
+    images: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
+
+
+@dataclass(frozen=True)
+class ScriptedCollectors:
+    """A task's two scripted collectors (``module:Class``, imported when first used, so naming a task loads neither) and
+    the module recording their episodes (its ``RecordConfig`` and ``record_episode``): what ``gpc collect`` (the expert,
+    stopping at success) and ``--explore`` run, as ``Task.record`` and ``Task.collector_params``."""
+
+    expert: str
+    explore: str
+    recorder: str
+
+    def policy(self, kind: str) -> Any:
+        """A fresh collector of ``kind``."""
+        spec = {"expert": self.expert, "explore": self.explore}.get(kind)
+        if spec is None:
+            raise ValueError(f"collector {kind!r}: use expert or explore")
+        module, name = spec.split(":")
+        return getattr(importlib.import_module(module), name)()
+
+    def params(self, kind: str, max_steps: int) -> dict[str, Any]:
+        return scripted_params(self.policy(kind), kind, max_steps)
+
+    def record(self, kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+        recorder = importlib.import_module(self.recorder)
+        config = recorder.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images)
+        return recorder.record_episode(self.policy(kind), seed, config)

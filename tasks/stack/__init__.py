@@ -20,8 +20,8 @@ import gymnasium as gym
 import numpy as np
 
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
-from gpc.tasks.base import EpisodeStats, Task
-from gpc.tasks.planar.record import scripted_params
+from gpc.tasks.base import Task
+from gpc.tasks.planar.record import ScriptedCollectors
 from gpc.tasks.stack import geometry, render, scene
 from gpc.tasks.stack import record as stack_record
 from gpc.tasks.stack.env import MAX_EPISODE_STEPS, MAX_YAW, MIN_APART, START_RANGE, StackEnv
@@ -46,26 +46,9 @@ LAYOUT = TaskLayout(
 PAPER = {"stack-vision": {"bc": 0.912, "rank K=100": 0.989}}
 
 
-def scripted_policy(kind: str) -> Any:
-    """The privileged controller behind ``gpc collect --task stack`` (``expert``) and ``--explore``."""
-    if kind == "expert":
-        from gpc.tasks.stack.expert import StackExpert
-
-        return StackExpert()
-    if kind == "explore":
-        from gpc.tasks.stack.explore import ExplorePolicy
-
-        return ExplorePolicy()
-    raise ValueError(f"collector {kind!r}: use expert or explore")
-
-
-def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
-    return scripted_params(scripted_policy(kind), kind, max_steps)
-
-
-def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    config = stack_record.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images)
-    return stack_record.record_episode(scripted_policy(kind), seed, config)
+COLLECTORS = ScriptedCollectors(expert="gpc.tasks.stack.expert:StackExpert", explore="gpc.tasks.stack.explore:ExplorePolicy",
+                                recorder="gpc.tasks.stack.record")
+scripted_policy = COLLECTORS.policy  # the privileged controller behind `gpc collect --task stack` and `--explore`
 
 
 def env_params(goal: str, max_steps: int) -> dict[str, Any]:
@@ -101,8 +84,8 @@ TASK = Task(
     make_env=make_env,
     observe=stack_record.observe,  # type: ignore[arg-type]
     record_keys=record_keys,
-    record=record,
-    collector_params=collector_params,
+    record=COLLECTORS.record,
+    collector_params=COLLECTORS.params,
     env_params=env_params,
     simulator=SimulatorModel,
     sim_key=SIM_KEY,

@@ -20,9 +20,9 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, ObjectLook, StateLayout, TaskLayout
-from gpc.tasks.base import EpisodeStats, Task
+from gpc.tasks.base import Task
 from gpc.tasks.planar.draw import AGENT_EDGE, AGENT_FILL, draw_plan
-from gpc.tasks.planar.record import scripted_params
+from gpc.tasks.planar.record import ScriptedCollectors
 from gpc.tasks.planar.scene import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ, WORKSPACE
 from gpc.tasks.swap import geometry, render
 from gpc.tasks.swap import record as swap_record
@@ -56,26 +56,9 @@ LAYOUT = TaskLayout(
 PAPER = {"swap-vision": {"bc": 0.680, "rank K=100": 0.730}}
 
 
-def scripted_policy(kind: str) -> Any:
-    """The privileged controller behind ``gpc collect --task swap`` (``expert``) and ``--explore``."""
-    if kind == "expert":
-        from gpc.tasks.swap.expert import SwapExpert
-
-        return SwapExpert()
-    if kind == "explore":
-        from gpc.tasks.swap.explore import ExplorePolicy
-
-        return ExplorePolicy()
-    raise ValueError(f"collector {kind!r}: use expert or explore")
-
-
-def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
-    return scripted_params(scripted_policy(kind), kind, max_steps)
-
-
-def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    config = swap_record.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images)
-    return swap_record.record_episode(scripted_policy(kind), seed, config)
+COLLECTORS = ScriptedCollectors(expert="gpc.tasks.swap.expert:SwapExpert", explore="gpc.tasks.swap.explore:ExplorePolicy",
+                                recorder="gpc.tasks.swap.record")
+scripted_policy = COLLECTORS.policy  # the privileged controller behind `gpc collect --task swap` and `--explore`
 
 
 def env_params(goal: str, max_steps: int) -> dict[str, Any]:
@@ -113,8 +96,8 @@ TASK = Task(
     make_env=make_env,
     observe=swap_record.observe,  # type: ignore[arg-type]
     record_keys=record_keys,
-    record=record,
-    collector_params=collector_params,
+    record=COLLECTORS.record,
+    collector_params=COLLECTORS.params,
     env_params=env_params,
     simulator=SimulatorModel,
     sim_key=SIM_KEY,
