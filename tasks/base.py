@@ -75,9 +75,6 @@ class Task:
     max_episode_steps: int = 300
     # The reward planners score predicted states with, by name (``gpc.models.rewards.state``): tasks never import models.
     state_reward: str = "registration"
-    # A reward of the task's own under that name: ``(layout, RewardConfig) -> reward``, registered by the harness before
-    # use (``gpc.models.rewards.state.register_state_reward``); None: a reward the registry knows already.
-    state_reward_factory: Callable[[TaskLayout, Any], Any] | None = None
     info_metrics: tuple[str, ...] = ()  # step-info values whose episode maximum a result records (``<name>_max``)
     draw_plan: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, chunk, executed) -> frame
     draw_futures: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, futures, scores, chosen)

@@ -43,7 +43,7 @@ def test_a_layout_without_objects_reads_no_goal_and_no_object_frame():
 
 
 def test_the_planning_reward_is_the_f1_the_true_states_score():
-    """``ink-f1`` (registered by the harness from the task) scores true states as the environment does, and has a
+    """The task's own reward (named ``module:function``) scores true states as the environment does, and has a
     gradient for GPC-OPT."""
     task = get_task("draw")
     env = task.make_env("fixed")

@@ -77,6 +77,7 @@ def test_eval_on_two_nodes_equals_one_local_process(cluster, tiny_pusht, tmp_pat
     assert _numbers(tmp_path / "ray") == _numbers(tmp_path / "local")
 
 
+@pytest.mark.extended  # make test-extended (CI's make test runs the two-node equality)
 def test_record_and_collect_on_ray_write_the_local_stores_byte_for_byte(cluster, tiny_pusht, tmp_path):
     record = ["record", str(tiny_pusht["policy"]), "--planner", "rank", "-K", "3", "--world-model", str(tiny_pusht["wm"]),
               "--episodes", "4", "--seed", "60000", "--batch", "2", "--max-steps", "20"]
@@ -98,6 +99,7 @@ def planned(tiny_pusht):
     return recipe, config, evaluate(recipe, dataclasses.replace(config, workers=1, backend=None))["episodes"]
 
 
+@pytest.mark.extended  # make test-extended (CI's make test runs the two-node equality)
 def test_a_killed_worker_has_its_groups_run_again_elsewhere(cluster, planned):
     recipe, config, local = planned
     killed: list[int] = []
@@ -114,6 +116,7 @@ def test_a_killed_worker_has_its_groups_run_again_elsewhere(cluster, planned):
     assert result["episodes"] == local
 
 
+@pytest.mark.extended  # make test-extended (CI's make test runs the two-node equality)
 def test_a_stopped_ray_eval_ends_its_workers_keeps_its_groups_and_resumes(cluster, planned, tmp_path):
     recipe, config, local = planned
 

@@ -71,10 +71,8 @@ def build_reward(spec: RewardSpec, task: Task, device: str = "cpu") -> Any:
     """The task's own reward on predicted states (``Task.state_reward``: Push-T's registration of its objects), or a
     learned / VLM one (the state reward is the VLM's fallback)."""
     from gpc.models.rewards.registration import RewardConfig
-    from gpc.models.rewards.state import register_state_reward, state_reward
+    from gpc.models.rewards.state import state_reward
 
-    if task.state_reward_factory is not None:  # the task's own reward (tasks never import models: registered here)
-        register_state_reward(task.state_reward, task.state_reward_factory)
     config = RewardConfig(aggregate=spec.aggregate)
     registration = state_reward(task.state_reward, task.layout, config)
     if spec.kind == "registration":

@@ -5,7 +5,7 @@ target triangle, shown faintly, and the pen starts on one of its vertices. Nothi
 the ink drawn so far, summarised in the ``state`` vector (``sim.DrawSim.state``: the pen, the triangle, each outline
 bin's inked share and the ink off the outline) so a state world model must carry the whole stroke forward. The reward
 is the F1 of the ink against the outline widened by the pen's width (``geometry``); its planning reward on predicted
-states is ``ink-f1`` (``reward``), registered by the harness. Design: ``docs/tasks.md``.
+states is ``reward.from_layout`` (the ink F1), named ``module:function``. Design: ``docs/tasks.md``.
 ``TASK`` is all the rest of gpc knows of it; ``gymnasium.make("gpc/Draw-v0", obs_type=...)`` builds the environment.
 """
 
@@ -29,7 +29,7 @@ from gpc.tasks.planar.record import ScriptedCollectors
 from gpc.tasks.planar.scene import CONTROL_HZ, K_P, K_V, SIM_HZ, WORKSPACE
 
 ENV_ID = "gpc/Draw-v0"
-STATE_REWARD = "ink-f1"
+STATE_REWARD = "gpc.tasks.draw.reward:from_layout"  # the F1 on predicted ink summaries, loaded by name
 
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="gpc.tasks.draw.env:DrawEnv", max_episode_steps=MAX_EPISODE_STEPS)
@@ -77,13 +77,6 @@ def stored_scores(arrays: Mapping[str, np.ndarray], ends: np.ndarray) -> np.ndar
     return draw_record.episode_scores(arrays["state"], ends)
 
 
-def state_reward_factory(layout: TaskLayout, config: Any) -> Any:
-    """``ink-f1`` for the harness to register (torch is imported only when a planner needs it)."""
-    from gpc.tasks.draw.reward import from_layout
-
-    return from_layout(layout, config)
-
-
 TASK = Task(
     layout=LAYOUT,
     description="draw the faint triangle's outline with the pen, every edge once, without ink off the outline",
@@ -100,7 +93,6 @@ TASK = Task(
     episode_scores=stored_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
     state_reward=STATE_REWARD,
-    state_reward_factory=state_reward_factory,
     info_metrics=("coverage", "off_outline"),
     draw_plan=draw_plan,
     row_shapes={"n_contacts": (1,)},

@@ -3,8 +3,8 @@
 Registration places objects' outlines, which ink has none of; here a state's summary holds each bin's inked share
 of the band and the share inked off it, so ``F1 = 2 R / (R + off + 1)`` with ``R`` the bins' sum
 (``geometry.f1_from_summary``, exact on true states). A predicted summary can stray below 0; the shares are
-clamped there, so the score stays a ratio. ``gpc.tasks.draw.TASK`` names it ``ink-f1``; the harness registers it in
-``gpc.models.rewards.state`` (tasks never import models).
+clamped there, so the score stays a ratio. The task names it ``gpc.tasks.draw.reward:from_layout``, which
+``gpc.models.rewards.state`` imports on first use (tasks never import models).
 """
 
 from __future__ import annotations
