@@ -26,7 +26,7 @@ from gymnasium import spaces
 from gpc.tasks.draw import geometry
 from gpc.tasks.draw.render import draw_scene
 from gpc.tasks.draw.sim import SIM_DIM, STATE_DIM, DrawSim
-from gpc.tasks.planar.scene import WORKSPACE, ObsConfig, episode_seed
+from gpc.tasks.planar.scene import WORKSPACE, ObsConfig, episode_seed, observation_space
 
 MAX_EPISODE_STEPS = 300
 OBS_PARTS = ("state", "pixels")
@@ -52,14 +52,7 @@ class DrawEnv(gym.Env):
         self.sim = DrawSim()
         self.start_vertex = 0
         self.action_space = spaces.Box(0.0, WORKSPACE, shape=(2,), dtype=np.float64)
-        subspaces = {p: self._space(p) for p in self.config.obs_parts}
-        self.observation_space = next(iter(subspaces.values())) if len(subspaces) == 1 else spaces.Dict(subspaces)
-
-    def _space(self, part: str) -> spaces.Space:
-        if part == "pixels":
-            n = self.config.render_size
-            return spaces.Box(0, 255, shape=(n, n, 3), dtype=np.uint8)
-        return spaces.Box(-np.inf, np.inf, shape=(STATE_DIM,), dtype=np.float64)
+        self.observation_space = observation_space(self.config.obs_parts, self.config.render_size, {"state": STATE_DIM})
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):

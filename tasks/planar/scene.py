@@ -97,6 +97,20 @@ class ObsConfig:
         return tuple(self.obs_type.split("+"))
 
 
+def observation_space(parts: Sequence[str], render_size: int, sizes: dict[str, int]) -> Any:
+    """An environment's Gymnasium observation space: ``pixels`` an RGB frame, every other part a vector of ``sizes[part]``
+    numbers; one part alone is its own space, several a ``Dict``."""
+    from gymnasium import spaces
+
+    def space(part: str) -> spaces.Space:
+        if part == "pixels":
+            return spaces.Box(0, 255, shape=(render_size, render_size, 3), dtype=np.uint8)
+        return spaces.Box(-np.inf, np.inf, shape=(sizes[part],), dtype=np.float64)
+
+    subspaces = {p: space(p) for p in parts}
+    return next(iter(subspaces.values())) if len(subspaces) == 1 else spaces.Dict(subspaces)
+
+
 def episode_seed(env: Any, seed: int | None) -> int:
     """The seed an episode is drawn from: the one given, else one from the Gymnasium env's own stream (``np_random``)."""
     return int(env.np_random.integers(0, 2**31 - 1)) if seed is None else seed

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gpc.tasks.planar.scene import episode_seed
+from gpc.tasks.planar.scene import episode_seed, observation_space
 from gpc.tasks.stack import geometry
 from gpc.tasks.stack.render import draw_state
 from gpc.tasks.stack.scene import ACTION_HIGH, ACTION_LOW, CUBE_SIDE, MAX_OPENING, STATE_DIM, StackSim
@@ -84,14 +84,7 @@ class StackEnv(gym.Env):
         self.sim = StackSim()
         self.settled = 0  # steps in a row stacked, released and at rest
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float64)
-        subspaces = {p: self._space(p) for p in self.config.obs_parts}
-        self.observation_space = next(iter(subspaces.values())) if len(subspaces) == 1 else spaces.Dict(subspaces)
-
-    def _space(self, part: str) -> spaces.Space:
-        if part == "pixels":
-            n = self.config.render_size
-            return spaces.Box(0, 255, shape=(n, n, 3), dtype=np.uint8)
-        return spaces.Box(-np.inf, np.inf, shape=(STATE_DIM,), dtype=np.float64)
+        self.observation_space = observation_space(self.config.obs_parts, self.config.render_size, {"state": STATE_DIM})
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):

@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE, ObsConfig, episode_seed
+from gpc.tasks.planar.scene import AGENT_RADIUS, WORKSPACE, ObsConfig, episode_seed, observation_space
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.render import draw_state
 from gpc.tasks.swap.sim import SwapSim
@@ -73,14 +73,7 @@ class SwapEnv(gym.Env):
         self.sim = SwapSim()
         self.goal = initial_scene(0)[1]
         self.action_space = spaces.Box(0.0, WORKSPACE, shape=(2,), dtype=np.float64)
-        subspaces = {p: self._space(p) for p in self.config.obs_parts}
-        self.observation_space = next(iter(subspaces.values())) if len(subspaces) == 1 else spaces.Dict(subspaces)
-
-    def _space(self, part: str) -> spaces.Space:
-        if part == "pixels":
-            n = self.config.render_size
-            return spaces.Box(0, 255, shape=(n, n, 3), dtype=np.uint8)
-        return spaces.Box(-np.inf, np.inf, shape=({"state": 11, "keypoints": 18}[part],), dtype=np.float64)
+        self.observation_space = observation_space(self.config.obs_parts, self.config.render_size, {"state": 11, "keypoints": 18})
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
