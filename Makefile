@@ -24,6 +24,8 @@ TITLE.swap := Cube & Sphere Swapping
 TITLE.draw := Triangle Drawing
 TITLE.stack := Block Stacking
 PAPER_STATE.pusht := --paper pusht-state
+# Swap's three-phase demonstrations at PROFILE=cpu: 400 (its state policy overfit 200: validation loss rising from step 2,200 of 3,000).
+CPU_EXPERT_EPISODES.swap := 400
 # Per task, vision: the paper's vision row (`gpc compare --paper`, the task's PAPER) where it has one.
 PAPER_VISION.pusht := --paper pusht-vision
 PAPER_VISION.swap := --paper swap-vision
@@ -155,8 +157,7 @@ else ifeq ($(PROFILE),paper)
   VWM_ONPOLICY := --profile paper --max-steps 5000
   VPROBE_ARGS := --seeds 200000:200050 --max-steps 300 --batch 50
 else ifeq ($(PROFILE),cpu)
-  # Swap's three-phase demonstrations: 400 (its state policy overfit 200: validation loss rising from step 2,200 of 3,000).
-  EXPERT_EPISODES := $(if $(filter swap,$(TASK)),400,200)
+  EXPERT_EPISODES := $(or $(CPU_EXPERT_EPISODES.$(TASK)),200)
   EXPLORE_EPISODES := 200
   POLICY := --profile cpu --max-steps 3000
   WM1 := --profile cpu --max-steps 6000
