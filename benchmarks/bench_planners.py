@@ -19,7 +19,7 @@ from benchmarks.common import publish, time_decisions
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import model_planner
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.profiles import world_model_profile
 from gpc.models.world_models.state import STATE_KEY
@@ -67,7 +67,7 @@ def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = 
         for label, fields, model, target in settings:
             wm = SimulatorModel() if model == "gt-sim" else learned
             box = {"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high}
-            planner = Planner(PlannerConfig(**fields, **box), wm, reward, policy, sampling)
+            planner = model_planner(PlannerConfig(**fields, **box), wm, reward, policy, sampling)
             t, share = time_decisions(planner, obs, 5)
             rows.append([label, f"DDIM-{steps}", f"{t:.3f} s", share, target])
     load = os.getloadavg()[0]

@@ -23,7 +23,7 @@ from benchmarks.bench_policy import _policy
 from benchmarks.bench_world_model import _model, _reward
 from benchmarks.common import publish, time_decisions
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import model_planner
 from gpc.models.policy.module import PolicyModule
 from gpc.tasks.pusht import LAYOUT, observe
 from gpc.tasks.pusht.env import PushTEnv
@@ -64,7 +64,7 @@ def run(doc: Path | None, policy_ckpt: str | None = None, wm_ckpt: str | None = 
     for lever, steps, bf16, channels_last in levers:
         _with_lever(model, steps, bf16, channels_last)
         for label, fields, target in settings:
-            planner = Planner(PlannerConfig(**fields, **box), model, reward, policy, SamplingConfig("ddim", 10))
+            planner = model_planner(PlannerConfig(**fields, **box), model, reward, policy, SamplingConfig("ddim", 10))
             t, share = time_decisions(planner, obs, repeat)
             rows.append([label, lever, f"{t:.2f} s", share, target])
     load = os.getloadavg()[0]

@@ -18,7 +18,7 @@ from gpc.models.planning.ascent import ascend
 from gpc.models.planning.config import PLANNERS, PlannerConfig
 from gpc.models.planning.loading import load_planner
 from gpc.models.planning.objective import Objective, PartTimer
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import model_planner
 from gpc.models.policy.controller import PolicyController
 from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.registration import RegistrationReward
@@ -89,7 +89,7 @@ def test_rank_opt_batched_equals_one_by_one(ckpts):
 def test_ground_truth_predictions_are_what_the_simulator_delivers(ckpts):
     """The gt-sim planner's predicted rewards equal those the episode's own scene then produces."""
     reward = build_reward(RewardSpec(), PUSHT)
-    p = Planner(PlannerConfig(kind="rank", num_proposals=8, keep_futures=True), SimulatorModel(), reward,
+    p = model_planner(PlannerConfig(kind="rank", num_proposals=8, keep_futures=True), SimulatorModel(), reward,
                 PolicyModule.load_from_checkpoint(ckpts["policy"]))
     for seed in (100000, 100003):
         env = PushTEnv()
@@ -253,7 +253,7 @@ PLAIN_PYTHON = """
 import sys, json
 from gpc.harness.evaluation import EvalConfig, evaluate
 from gpc.models.planning.config import PlannerConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import Planner, model_planner
 from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.registration import RegistrationReward
 from gpc.models.world_models.module import WorldModelModule
@@ -261,7 +261,7 @@ from gpc.tasks import get_task
 
 policy_ckpt, wm_ckpt = sys.argv[1:3]
 layout = get_task("pusht").layout
-planner = Planner(PlannerConfig(kind="rank", num_proposals=4), WorldModelModule.load_from_checkpoint(wm_ckpt),
+planner = model_planner(PlannerConfig(kind="rank", num_proposals=4), WorldModelModule.load_from_checkpoint(wm_ckpt),
                   RegistrationReward.from_layout(layout), PolicyModule.load_from_checkpoint(policy_ckpt))
 result = evaluate(lambda: planner, EvalConfig(seeds=(100000, 100001), task="pusht", max_steps=16, batch=2))
 print(json.dumps({"score": result["mean_score"], "shares": sorted(result["time_share"]),

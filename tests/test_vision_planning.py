@@ -16,7 +16,7 @@ from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import episode_generator
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import model_planner
 from gpc.models.policy.config import policy_profile
 from gpc.models.policy.module import PolicyModule
 from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
@@ -35,7 +35,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 def vision_ceiling_delivers_its_predictions(policy: PolicyModule) -> None:
     """gt-sim over an image policy: the chunk it picks delivers the reward it predicted (frames in, true states scored)."""
     reward = build_reward(RewardSpec(), get_task("pusht"))
-    p = Planner(PlannerConfig(kind="rank", num_proposals=4), SimulatorModel(), reward, policy)
+    p = model_planner(PlannerConfig(kind="rank", num_proposals=4), SimulatorModel(), reward, policy)
     assert "img" in p.obs_keys
     env = PushTEnv()
     env.reset(seed=100002)

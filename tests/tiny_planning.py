@@ -10,7 +10,7 @@ from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import episode_generator
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import Planner, model_planner
 from gpc.models.policy.config import policy_profile
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
@@ -49,7 +49,7 @@ def histories(seeds, sim: bool = False) -> dict[str, np.ndarray]:
 def planner(ckpts, **kw) -> Planner:
     config = PlannerConfig(**{"action_low": LAYOUT.action.low, "action_high": LAYOUT.action.high, **kw})
     policy = PolicyModule.load_from_checkpoint(ckpts["policy"])
-    return Planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), PUSHT), policy)
+    return model_planner(config, WorldModelModule.load_from_checkpoint(ckpts["wm"]), build_reward(RewardSpec(), PUSHT), policy)
 
 
 def gens(seeds, sampling_seed: int = 0):

@@ -73,8 +73,7 @@ class ProbingPlanner:
         with torch.no_grad():
             true, true_futures = sim(chunks.flatten(1, 2))
             ends = chunks[:, :, [0, m1 - 1]]
-            model = Objective(self.planner.world_model, self.planner.reward,
-                              torch.as_tensor(np.asarray(obs[self.planner.wm_key])), goal, PartTimer())
+            model = self.planner.scorer.objective(obs, PartTimer())
             _, predicted_ends = model(ends.flatten(1, 2))
         true_ends = true_futures.unflatten(1, (k, m1))[:, :, [0, m1 - 1]].flatten(1, 2)
         error, on_truth = self._against_truth(predicted_ends, true_ends, goal)

@@ -17,8 +17,9 @@ from typing import Any
 
 from gpc.datasets.errors import DataError
 from gpc.models.networks.precision import check_rollout_precision
-from gpc.models.planning.config import PLANNERS, WITH_GRADIENTS, PlannerConfig, SamplingConfig
+from gpc.models.planning.config import PlannerConfig, SamplingConfig
 from gpc.models.planning.protocols import Controller
+from gpc.models.planning.registry import WORLD_MODEL, planner_kind, planner_names
 from gpc.models.policy.controller import PolicyController
 from gpc.models.rewards.registration import AGGREGATES
 from gpc.tasks import get_task
@@ -26,7 +27,6 @@ from gpc.tasks.base import Task
 
 GT_SIM = "gt-sim"
 BC = "bc"
-PLANNER_CHOICES = (BC, *PLANNERS[:3], GT_SIM, *PLANNERS[3:])  # every --planner value, in the order the help lists them
 REWARDS = ("registration", "learned", "vlm")
 ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
                    if f.name in ("lr_decay", "trust_region", "keep_best", "knots")}
@@ -34,8 +34,13 @@ ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
 LATER_DEFAULTS = {"action_steps": None, "knots": 0}
 # The VLM settings that change its answers (not where it is served, its key, time-outs or cache), each left out at its default.
 VLM_IDENTITY = ("model", "temperature", "prompt", "frame_size", "columns", "max_tokens")
-DEFAULT_STEPS = {"rank": 0, "cem": 5, "mppi": 5}  # M when not given (30 for the gradient planners)
+DEFAULT_STEPS = {"cem": 5, "mppi": 5}  # M when not given: 30 for the gradient planners, 0 for those that take no steps
 DEVICES = ("cpu", "cuda")  # where the controller's networks run (--device)
+
+
+def planner_choices() -> tuple[str, ...]:
+    """Every --planner value: the policy alone, the registered planners, and the ground-truth ceiling."""
+    return (BC, *planner_names(), GT_SIM)
 
 
 @dataclass(frozen=True)
@@ -106,10 +111,16 @@ class PlannerRecipe:
         check_rollout_precision(self.precision)
         if self.device not in DEVICES:
             raise ValueError(f"--device {self.device!r}: use one of {', '.join(DEVICES)}")
-        if self.planner is not None and not self.world_model:
-            raise ValueError(f"--planner {self.planner.kind} needs --world-model CKPT (or --world-model {GT_SIM})")
-        if self.world_model == GT_SIM and self.planner is not None and self.planner.uses_gradients:
-            raise ValueError(f"--planner {self.planner.kind} differentiates through the world model; {GT_SIM} is not differentiable")
+        if self.planner is None:
+            return
+        kind = self.planner.planner
+        if not self.world_model:
+            also = f" (or --world-model {GT_SIM})" if kind.load == WORLD_MODEL else ""
+            raise ValueError(f"--planner {kind.name} needs --world-model CKPT, its {kind.model}{also}")
+        if self.world_model == GT_SIM and kind.load != WORLD_MODEL:
+            raise ValueError(f"--planner {kind.name} scores with a {kind.model}, not the simulator; drop --world-model {GT_SIM}")
+        if self.world_model == GT_SIM and kind.uses_gradients:
+            raise ValueError(f"--planner {kind.name} differentiates through the world model; {GT_SIM} is not differentiable")
 
     @property
     def label(self) -> str:
@@ -130,20 +141,23 @@ class PlannerRecipe:
     def __call__(self) -> Controller:
         from gpc.harness.policies import load_policy
         from gpc.models.planning.loading import check_pairing
-        from gpc.models.planning.planner import Planner
+        from gpc.models.planning.objective import ModelScorer
+        from gpc.models.planning.planner import build_planner
 
         policy = load_policy(self.policy, self.task, self.policy_format, map_location=self.device).to(self.device)
         if self.planner is None:
             return PolicyController(policy, self.sampling)
         assert self.world_model is not None
         task = get_task(policy.config.task)
-        world_model = load_world_model(self.world_model, task, self.device)
-        check_pairing(policy, world_model, self.world_model)
-        if hasattr(world_model, "set_rollout_precision"):  # the simulator (gt-sim) has none
-            world_model.set_rollout_precision(self.precision)
+        kind = self.planner.planner
+        model = kind.loader()(self.world_model, task, self.device)  # a world model (GPC's), a value function, ...
+        check_pairing(policy, model, self.world_model)
+        if hasattr(model, "set_rollout_precision"):  # the simulator (gt-sim) and value functions have none
+            model.set_rollout_precision(self.precision)
         box = task.layout.action
         config = dataclasses.replace(self.planner, action_low=box.low, action_high=box.high)
-        return Planner(config, world_model, build_reward(self.reward, task, self.device), policy, self.sampling)
+        scorer = ModelScorer(model, build_reward(self.reward, task, self.device)) if kind.uses_reward else model
+        return build_planner(config, scorer, policy, self.sampling)
 
     def summary(self) -> dict[str, Any]:
         """What a results file records about the controller: every setting its numbers depend on
@@ -158,7 +172,9 @@ class PlannerRecipe:
         if self.planner is not None:
             planner = {key: value for key, value in dataclasses.asdict(self.planner).items()
                        if key not in LATER_DEFAULTS or value != LATER_DEFAULTS[key]}
-            out.update(planner=planner, world_model=self.world_model, reward=self.reward.kind)
+            out.update(planner=planner, world_model=self.world_model)
+            if self.planner.planner.uses_reward:  # (a value function scores with its own)
+                out["reward"] = self.reward.kind
             if self.reward.aggregate != "final":
                 out["reward_aggregate"] = self.reward.aggregate
             if self.reward.vlm is not None:
@@ -189,8 +205,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     from gpc.harness.policies import load_policy
     from gpc.models.policy.formats import detect_format
 
-    if planner not in PLANNER_CHOICES:
-        raise ValueError(f"--planner {planner!r}: use one of {', '.join(PLANNER_CHOICES)}")
+    if planner not in planner_choices():
+        raise ValueError(f"--planner {planner!r}: use one of {', '.join(planner_choices())}")
     policy_format = policy_format or detect_format(policy)
     loaded = load_policy(policy, task, policy_format)
     chosen = get_task(loaded.config.task)
@@ -209,8 +225,9 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
         want = chosen.row_shape(key)
         if want is not None and tuple(shape) != want:
             raise DataError(f"{policy}: the policy was trained on {key} rows of {tuple(shape)}; task {chosen.name} observes {want}")
-    if {key: value for key, value in (ascent or {}).items() if ASCENT_DEFAULTS[key] != value} and planner not in WITH_GRADIENTS:
-        raise ValueError(f"--lr-decay, --trust-region, --keep-best and --knots apply to {', '.join(WITH_GRADIENTS)}, "
+    gradients = tuple(name for name in planner_names() if planner_kind(name).uses_gradients)
+    if {key: value for key, value in (ascent or {}).items() if ASCENT_DEFAULTS[key] != value} and planner not in gradients:
+        raise ValueError(f"--lr-decay, --trust-region, --keep-best and --knots apply to {', '.join(gradients)}, "
                          f"not --planner {planner}")
     if planner == BC:
         if world_model or k or m or action_steps:
@@ -222,11 +239,12 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
         if world_model not in (None, GT_SIM):
             raise ValueError(f"--planner {GT_SIM} uses the true simulator; drop --world-model {world_model}")
         world_model = GT_SIM
-    box = chosen.layout.action
-    config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if kind == "opt" else 100),
-                           opt_steps=m if m is not None else DEFAULT_STEPS.get(kind, 30), lr=lr,
-                           action_low=box.low, action_high=box.high, keep_futures=keep_futures, action_steps=action_steps,
-                           **(ascent or {}))
+    box, registered = chosen.layout.action, planner_kind(kind)
+    steps = DEFAULT_STEPS.get(kind, 30) if registered.iterates else 0
+    config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if registered.single else 100),
+                           opt_steps=m if m is not None else steps, lr=lr, action_low=box.low, action_high=box.high,
+                           keep_futures=keep_futures and registered.load == WORLD_MODEL,  # futures to draw: a model's
+                           action_steps=action_steps, **(ascent or {}))
 
     recipe = PlannerRecipe(str(policy), config, world_model, reward, sampling, chosen.name, policy_format, precision, device=device)
     here = device if device == "cpu" or _cuda() else "cpu"

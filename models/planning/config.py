@@ -1,8 +1,9 @@
 """What a planner does at each decision, as one validated config (the CLI fills it).
 
 ``rank``, ``opt`` and ``rank-opt`` start from the frozen policy's proposals (GPC); ``cem``,
-``mppi`` and ``grad`` start from random chunks (the paper's prior-free comparison). The
-ground-truth-simulator ceiling is ``rank`` with the simulator as world model.
+``mppi`` and ``grad`` start from random chunks (the paper's prior-free comparison); ``vgps``
+ranks the proposals by a Q-function. The ground-truth-simulator ceiling is ``rank`` with the
+simulator as world model. What each kind needs is in ``gpc.models.planning.registry``.
 """
 
 from __future__ import annotations
@@ -15,11 +16,10 @@ from typing import Any
 import torch
 
 from gpc.models.planning.protocols import ActionProposer
+from gpc.models.planning.registry import BUILT_IN, WORLD_MODEL, PlannerKind, planner_kind
 
-PLANNERS = ("rank", "opt", "rank-opt", "cem", "mppi", "grad")
-WITH_POLICY = ("rank", "opt", "rank-opt")  # planners that read the policy's proposals
-WITH_GRADIENTS = ("opt", "rank-opt", "grad")  # planners that differentiate through world model and reward
-PRIOR_FREE = ("cem", "mppi", "grad")  # planners that start from random chunks in the action box
+PLANNERS = tuple(k.name for k in BUILT_IN if k.load == WORLD_MODEL)  # the built-in planners over a world model
+WITH_GRADIENTS = tuple(k.name for k in BUILT_IN if k.uses_gradients)  # (for messages; a kind says it of itself)
 MAX_PROPOSALS = 100_000
 LR_DECAYS = ("constant", "cosine")
 
@@ -33,7 +33,7 @@ class PlannerConfig:
     that draw random chunks, ``cem``, ``mppi`` and ``grad``, need it; the others clip to it when given).
     """
 
-    kind: str = "rank"  # rank | opt | rank-opt | cem | mppi | grad
+    kind: str = "rank"  # a registered planner (gpc.models.planning.registry): rank | opt | rank-opt | cem | mppi | grad | vgps
     num_proposals: int = 100  # K: policy proposals, random initial chunks, or samples per CEM/MPPI iteration
     opt_steps: int = 0  # M: gradient-ascent steps (opt, rank-opt, grad) or CEM/MPPI iterations
     lr: float = 2.0  # Adam step size on the raw actions (action units, e.g. px)
@@ -52,20 +52,19 @@ class PlannerConfig:
     action_steps: int | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in PLANNERS:
-            raise ValueError(f"--planner {self.kind!r}: use one of {', '.join(PLANNERS)}")
+        kind = self.planner  # an unknown name fails here, naming the known ones
         if self.action_steps is not None and self.action_steps < 1:
             raise ValueError(f"--action-steps {self.action_steps}: must be at least 1")
         if not 1 <= self.num_proposals <= MAX_PROPOSALS:
             raise ValueError(f"--K {self.num_proposals}: must lie in 1..{MAX_PROPOSALS}")
-        if self.kind == "opt" and self.num_proposals != 1:
-            raise ValueError(f"--K {self.num_proposals}: opt refines one proposal (use rank-opt for several)")
+        if kind.single and self.num_proposals != 1:
+            raise ValueError(f"--K {self.num_proposals}: {self.kind} refines one proposal (use rank-opt for several)")
         if not 0 <= self.opt_steps <= 10_000:
             raise ValueError(f"--M {self.opt_steps}: must lie in 0..10000")
-        if self.kind in ("opt", "rank-opt", "grad", "cem", "mppi") and self.opt_steps < 1:
+        if kind.iterates and self.opt_steps < 1:
             raise ValueError(f"--M {self.opt_steps}: {self.kind} needs at least one step")
-        if self.kind == "rank" and self.opt_steps:
-            raise ValueError(f"--M {self.opt_steps}: rank takes no gradient steps (use rank-opt)")
+        if not kind.iterates and self.opt_steps:
+            raise ValueError(f"--M {self.opt_steps}: {self.kind} takes no steps (rank-opt ranks and refines)")
         if not 0 < self.lr < math.inf:  # NaN fails too
             raise ValueError(f"--lr {self.lr}: the step size must be a finite number > 0")
         if self.lr_decay not in LR_DECAYS:
@@ -84,31 +83,36 @@ class PlannerConfig:
             raise ValueError("action bounds: give both action_low and action_high, or neither")
         if self.action_low is not None and self.action_high is not None and self.action_low >= self.action_high:
             raise ValueError(f"action bounds ({self.action_low}, {self.action_high}): low must be below high")
-        if self.kind in PRIOR_FREE and self.action_low is None:
+        if kind.prior_free and self.action_low is None:
             raise ValueError(f"--planner {self.kind} draws random chunks and needs the action box (action_low, action_high)")
 
     @property
+    def planner(self) -> PlannerKind:
+        """What this kind of planner is and needs (its registration)."""
+        return planner_kind(self.kind)
+
+    @property
     def uses_policy(self) -> bool:
-        return self.kind in WITH_POLICY
+        return self.planner.uses_policy
 
     @property
     def uses_gradients(self) -> bool:
-        return self.kind in WITH_GRADIENTS
+        return self.planner.uses_gradients
 
     @property
     def box(self) -> tuple[float, float]:
-        """The action box, for the planners that need one (``PRIOR_FREE``)."""
+        """The action box, for the planners that need one (the prior-free ones)."""
         if self.action_low is None or self.action_high is None:
             raise ValueError(f"planner {self.kind} needs the action box (action_low, action_high)")
         return self.action_low, self.action_high
 
     @property
     def label(self) -> str:
-        """Short name for tables: ``rank K=100``, ``rank-opt 10x30``, ``opt M=30``."""
-        if self.kind == "rank":
-            return f"rank K={self.num_proposals}"
-        if self.kind == "opt":
-            return f"opt M={self.opt_steps}"
+        """Short name for tables: ``rank K=100``, ``vgps K=100``, ``rank-opt 10x30``, ``opt M=30``."""
+        if not self.planner.iterates:
+            return f"{self.kind} K={self.num_proposals}"
+        if self.planner.single:
+            return f"{self.kind} M={self.opt_steps}"
         return f"{self.kind} {self.num_proposals}x{self.opt_steps}"
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from gpc.datasets.errors import DataError
 from gpc.models.planning.config import PlannerConfig, SamplingConfig
-from gpc.models.planning.planner import Planner
+from gpc.models.planning.planner import Planner, model_planner
 from gpc.models.planning.protocols import Reward, WorldModel
 from gpc.models.policy.formats import ForeignTask, feature_sources, load_policy
 from gpc.models.policy.module import PolicyModule
@@ -61,4 +61,4 @@ def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os
     else:
         source, model = type(world_model).__name__, world_model
     check_pairing(proposer, model, source)
-    return Planner(config, model, reward, proposer, sampling)
+    return model_planner(config, model, reward, proposer, sampling)

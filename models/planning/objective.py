@@ -1,16 +1,19 @@
 """The planners' objective: world model and reward as one function of candidate chunks, timed by part.
 
-DINO-WM's planner interface: a planner receives this objective and asks it for one score per
-candidate; it never calls the world model or the reward itself.
+DINO-WM's planner interface: a planner receives an objective and asks it for one score per
+candidate; it never calls the world model or the reward itself. A ``Scorer`` builds the objective
+of each decision from its observations: ``ModelScorer`` (GPC's: a world model's futures scored by a
+reward) here, a Q-function (``gpc.models.values``) or a latent model elsewhere.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
+import numpy as np
 import torch
 
 from gpc.models.planning.protocols import Reward, WorldModel
@@ -59,3 +62,32 @@ class Objective:
                 goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
                 scores = self.reward(futures.flatten(0, 1), goal).unflatten(0, (b, k))
         return scores, futures
+
+
+class ModelScorer:
+    """GPC's scorer: roll each candidate out with the world model and score its future with the reward.
+
+    ``world_model.obs_key`` (default ``state``) names the observation the world model reads; an
+    observation ``goal`` (tasks with a per-episode goal) is passed to the reward. Both are frozen
+    here (``requires_grad_(False)``): gradient ascent moves actions only.
+    """
+
+    def __init__(self, world_model: WorldModel, reward: Reward) -> None:
+        self.world_model, self.reward = world_model, reward
+        for frozen in (world_model, reward):
+            if isinstance(frozen, torch.nn.Module):
+                frozen.requires_grad_(False)
+        self.key = getattr(world_model, "obs_key", "state")
+        self.obs_keys: tuple[str, ...] = (self.key,)
+        self.n_obs_steps: int = world_model.n_obs_steps
+        self.differentiable = not getattr(reward, "selects", False)  # a selecting reward (a VLM) only ranks
+
+    def objective(self, obs: Mapping[str, np.ndarray], timer: PartTimer, episodes: Sequence[int] | None = None) -> Objective:
+        history = torch.as_tensor(np.asarray(obs[self.key]))
+        goal = torch.as_tensor(np.asarray(obs[GOAL_KEY])[:, -1], dtype=torch.float32) if GOAL_KEY in obs else None
+        return Objective(self.world_model, self.reward, history, goal, timer, episodes)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters of the reward (a VLM's queries and fallbacks), summed over every decision so far."""
+        stats = getattr(self.reward, "stats", None)
+        return dict(stats() if callable(stats) else stats or {})

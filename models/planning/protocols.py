@@ -104,3 +104,17 @@ class Reward(Protocol):
         reward's own) -> ``(K,)`` scores. A reward with ``selects = True`` only ranks one
         history's candidates (it is called per history and never differentiated)."""
         ...
+
+
+@runtime_checkable
+class Scorer(Protocol):
+    """Builds each decision's objective, ``(B, K, T, A)`` chunks -> ``(B, K)`` scores and ``(B, K, ...)`` predictions,
+    from the observations: a world model with a reward (``objective.ModelScorer``), a Q-function, a latent model."""
+
+    obs_keys: tuple[str, ...]  # the observations it reads (a goal is passed along when observed)
+    n_obs_steps: int  # history length it needs
+    differentiable: bool  # whether gradient planners may ascend its scores
+
+    def objective(self, obs: Mapping[str, np.ndarray], timer: Any, episodes: Sequence[int] | None = None) -> Any:
+        """``{key: (B, H, ...)}`` -> a callable of ``(B, K, T, A)`` chunks -> (scores, predictions); ``timer`` times parts."""
+        ...

@@ -1,0 +1,121 @@
+"""V-GPS's Q-function (IQL on stores) and the planner seam it plugs into, on the toy task (tests/toy_task.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from toy_task import GOAL, LAYOUT, REACH, move
+
+from gpc.datasets.errors import DataError
+from gpc.harness.collection import CollectJob, collect
+from gpc.harness.evaluation import EvalConfig, evaluate
+from gpc.harness.recipes import GT_SIM, make_recipe
+from gpc.models.planning import registry
+from gpc.models.planning.config import PlannerConfig
+from gpc.models.planning.planner import Rank
+from gpc.models.planning.registry import PlannerKind, planner_names, register_planner
+from gpc.models.policy.config import policy_profile
+from gpc.models.policy.module import PolicyModule
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import train
+from gpc.models.values.config import value_profile
+from gpc.models.values.module import ValueModule, expectile_loss
+from gpc.tasks import register_task
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+SEEDS = tuple(range(100000, 100004))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> dict[str, Path]:
+    register_task(REACH)
+    tmp = tmp_path_factory.mktemp("reach_values")
+    collect(CollectJob(task="reach", out=tmp / "expert.zarr", episodes=12, images=False, max_steps=40))
+    collect(CollectJob(task="reach", kind="explore", out=tmp / "explore.zarr", episodes=24, seed=500, images=False, max_steps=40))
+    run = {"batch_size": 64, "progress": False, "accelerator": "cpu", "checkpoint_every": 1000}
+    policy = train(PolicyModule, policy_profile("tiny", "state", LAYOUT).config, [tmp / "expert.zarr"],
+                   RunConfig(run_dir=tmp / "policy", max_steps=60, **run))
+    config = value_profile("tiny", "state", LAYOUT, (2, 4), lr=3e-3).config
+    value = train(ValueModule, dataclasses.replace(config, discount=0.9), [tmp / "expert.zarr", tmp / "explore.zarr"],
+                  RunConfig(run_dir=tmp / "value", max_steps=800, **run))  # 20 s on one thread
+    return {"policy": policy.last, "value": value.last, "tmp": tmp}
+
+
+def _reached(start: np.ndarray, chunk: np.ndarray) -> np.ndarray:
+    position = start.copy()
+    for action in chunk:
+        position = move(position, action)
+    return position
+
+
+def test_q_prefers_the_chunk_that_brings_the_point_nearer_the_goal(trained):
+    """Q, learned offline from expert and random episodes, orders chunks as the true reward of where they lead."""
+    value = ValueModule.load_from_checkpoint(trained["value"])
+    start = np.array([25.0, 75.0])
+    history = {"state": np.array([[start, start]])}
+    rng = np.random.default_rng(0)
+    targets = rng.uniform(0.0, 100.0, size=(24, 2))
+    chunks = np.repeat(targets[:, None], 4, axis=1)  # each chunk heads for one target for 4 steps
+    chunks[0], chunks[1] = GOAL, (0.0, 100.0)  # straight at the goal; straight away from it
+    q = value.q(history, torch.as_tensor(chunks[None], dtype=torch.float32))[0].numpy()
+    true = np.array([-np.linalg.norm(_reached(start, c) - np.asarray(GOAL)) for c in chunks])  # the task's reward there
+    assert q[0] - q[1] > 0.5 * (true[0] - true[1]), (q[:2], true[:2])  # (the true gap: 24; its Q adds what follows)
+    ranks = lambda x: np.argsort(np.argsort(x))  # noqa: E731
+    assert np.corrcoef(ranks(q), ranks(true))[0, 1] > 0.7, (q, true)
+
+
+def test_iql_weights_the_value_towards_the_better_actions():
+    """The expectile loss at tau 0.7 is minimised above the mean (V fits the better chunks' Q, not SARSA's average)."""
+    q = torch.tensor([0.0, 0.0, 1.0, 1.0, 5.0])
+    grid = torch.linspace(0.0, 5.0, 501)
+    best = grid[torch.stack([expectile_loss(q - v, 0.7) for v in grid]).argmin()]
+    assert float(q.mean()) < float(best) < float(q.max())
+    assert abs(float(grid[torch.stack([expectile_loss(q - v, 0.5) for v in grid]).argmin()]) - float(q.mean())) < 0.011
+
+
+def test_vgps_ranks_the_policys_proposals_by_q_and_records_its_settings(trained):
+    recipe = make_recipe(trained["policy"], "vgps", world_model=str(trained["value"]), k=6)
+    controller = recipe()
+    obs = {"state": np.array([[[20.0, 80.0], [21.0, 79.0]]])}
+    plan = controller.plan(obs, [torch.Generator().manual_seed(3)])
+    proposals = controller.policy.sample_batch(obs, 6, [torch.Generator().manual_seed(3)])[:, :, 1:].float()
+    expected = ValueModule.load_from_checkpoint(trained["value"]).q(obs, proposals)
+    assert np.allclose(plan.scores, expected.numpy(), atol=1e-5) and int(plan.chosen[0]) == int(expected.argmax())
+    summary = recipe.summary()
+    assert summary["controller"] == "vgps K=6" and summary["planner"]["kind"] == "vgps" and "reward" not in summary
+    result = evaluate(recipe, EvalConfig(seeds=SEEDS, task="reach", max_steps=20, batch=2))
+    assert [e["seed"] for e in result["episodes"]] == list(SEEDS)
+
+
+def test_vgps_refuses_what_it_cannot_score_with(trained):
+    with pytest.raises(ValueError, match="value function, not the simulator"):
+        make_recipe(trained["policy"], "vgps", world_model=GT_SIM)
+    with pytest.raises(ValueError, match="needs --world-model CKPT, its value function"):
+        make_recipe(trained["policy"], "vgps")
+    with pytest.raises(DataError, match="policy"):  # a policy checkpoint where the value function belongs
+        make_recipe(trained["policy"], "vgps", world_model=str(trained["policy"]))
+    with pytest.raises(ValueError, match="vgps takes no steps"):
+        PlannerConfig(kind="vgps", opt_steps=3)
+
+
+class LastProposal(Rank):
+    """A user's planner: always the policy's last proposal (scores rise with the index)."""
+
+    def search(self, objective, obs, generators, timer):
+        chunks, _, futures = super().search(objective, obs, generators, timer)
+        return chunks, torch.arange(chunks.shape[1], dtype=torch.float32).expand(chunks.shape[:2]), futures
+
+
+def test_a_users_planner_registers_by_name_and_runs_like_the_built_in_ones(trained, monkeypatch):
+    with pytest.raises(ValueError, match="vgps"):  # the known names, the baselines among them
+        make_recipe(trained["policy"], "last")
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))  # this test's registration ends with it
+    register_planner(PlannerKind("last", "test_values:LastProposal", uses_reward=False, load="gpc.models.values.module:load_value"))
+    assert "last" in planner_names()
+    recipe = make_recipe(trained["policy"], "last", world_model=str(trained["value"]), k=5)
+    plan = recipe().plan({"state": np.array([[[20.0, 80.0], [21.0, 79.0]]])}, [torch.Generator().manual_seed(0)])
+    assert int(plan.chosen[0]) == 4 and recipe.summary()["controller"] == "last K=5"
