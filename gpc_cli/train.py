@@ -4,6 +4,7 @@ holds the others)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -39,17 +40,34 @@ def policy(
     echo_result(train_component(PolicyModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 
+PolicyOption = Annotated[Path | None, typer.Option("--policy", help="The policy it will rank for: its observations, goal mode, history and executed chunk are taken (default: state observations, 2 steps of history, chunks of 8).")]
+ObsOption = Annotated[str | None, typer.Option("--obs", help="Observations: state, keypoints or image (default: the policy's, else state).")]
+GoalOption = Annotated[str, typer.Option("--goal", help="fixed or random (stores from `gpc collect --goal random`; default: the policy's).")]
+LrOption = Annotated[float | None, typer.Option("--lr", min=0.0, help="Peak learning rate (default: the profile's).")]
+
+
+def _for_policy(policy: Path | None, task: str, obs: str | None, goal: str) -> tuple[str, str, tuple[int, int]]:
+    """(observations, goal mode, (history, executed chunk)) of the policy a baseline ranks for, or the defaults."""
+    if policy is None:
+        return obs or "state", goal, (2, 8)
+    from gpc.harness.policies import load_policy
+
+    loaded = load_policy(policy, task, None)
+    varies = loaded.config.encoder.goal and get_task(task).layout.goal is not None
+    return obs or loaded.config.obs_type, "random" if varies else goal, (loaded.config.n_obs_steps, loaded.config.n_action_steps)
+
+
 @train_app.command("value")
 @with_run_options
 def value(
     dataset: Datasets,
     out: Out,
     task: Task = DEFAULT_TASK,
-    policy: Path | None = typer.Option(None, "--policy", help="The policy it will rank for: its observations, goal mode, history and executed chunk are taken (default: state observations, 2 steps of history, chunks of 8)."),
-    obs: str | None = typer.Option(None, "--obs", help="Observations: state, keypoints or image (default: the policy's, else state)."),
+    policy: PolicyOption = None,
+    obs: ObsOption = None,
     profile: str = typer.Option("cpu", "--profile", help="cpu (two 256-wide layers), paper (512-wide), tiny (tests)."),
-    lr: float | None = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, 3e-4)."),
-    goal: str = typer.Option("fixed", "--goal", help="fixed or random (stores from `gpc collect --goal random`; default: the policy's)."),
+    lr: LrOption = None,
+    goal: GoalOption = "fixed",
     options: dict | None = None,
 ) -> None:
     """Train V-GPS's Q-function by IQL on Zarr stores (expert and exploration) with the task's reward; rank with
@@ -58,16 +76,33 @@ def value(
     from gpc.models.values.config import value_profile
     from gpc.models.values.module import ValueModule
 
-    timeline = (2, 8)
-    if policy is not None:
-        from gpc.harness.policies import load_policy
-
-        loaded = load_policy(policy, task, None)
-        timeline = (loaded.config.n_obs_steps, loaded.config.n_action_steps)
-        obs = obs or loaded.config.obs_type
-        goal = "random" if loaded.config.encoder.goal and get_task(task).layout.goal is not None else goal
-    chosen = value_profile(profile, obs or "state", get_task(task).layout, timeline, goal=goal, lr=lr)
+    obs_type, goal, timeline = _for_policy(policy, task, obs, goal)
+    chosen = value_profile(profile, obs_type, get_task(task).layout, timeline, goal=goal, lr=lr)
     echo_result(train_component(ValueModule, chosen.config, dataset, run_config(chosen, out, options)))
+
+
+@train_app.command("latent-world-model")
+@with_run_options
+def latent_world_model(
+    dataset: Datasets,
+    out: Out,
+    task: Task = DEFAULT_TASK,
+    policy: PolicyOption = None,
+    obs: ObsOption = None,
+    profile: str = typer.Option("cpu", "--profile", help="cpu (256-wide, 16x16 latents), paper (DreamerV3's medium sizes), tiny (tests)."),
+    lr: LrOption = None,
+    goal: GoalOption = "fixed",
+    options: dict | None = None,
+) -> None:
+    """Train a DreamerV3-style RSSM on Zarr stores with the task's reward; rank with
+    `gpc eval POLICY --planner dreamer --world-model OUT/checkpoints/last.ckpt`."""
+    from gpc.harness.training import train_component
+    from gpc.models.latent.config import latent_profile
+    from gpc.models.latent.module import LatentWorldModelModule
+
+    obs_type, goal, _ = _for_policy(policy, task, obs, goal)
+    chosen = latent_profile(profile, obs_type, get_task(task).layout, goal=goal, lr=lr)
+    echo_result(train_component(LatentWorldModelModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 
 if __name__ == "__main__":  # `python -m gpc.cli.train policy ...` (DDP re-launches this way)

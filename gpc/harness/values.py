@@ -9,7 +9,7 @@ from gpc.tasks import get_task
 
 def task_reward(task: str) -> Any:
     """The task's state reward (the one GPC's planners score predicted futures with), ``(N, T, D)`` states and
-    ``(N, G)`` goals or None -> ``(N,)``, its final step scored; ``gpc.models.values.config.TASK_REWARD`` names it."""
+    ``(N, G)`` goals or None -> ``(N,)``, its final step scored; ``gpc.models.rewards.stored.TASK_REWARD`` names it."""
     from gpc.harness.recipes import RewardSpec, build_reward
 
     return build_reward(RewardSpec(), get_task(task))

@@ -72,6 +72,9 @@ BUILT_IN = (
                 description="prior-free gradient ascent from random chunks"),
     PlannerKind("vgps", f"{_PLANNER}:Rank", load=_VALUE, model="value function", uses_reward=False,
                 description="V-GPS: the best of K proposals by an offline Q-function (gpc train value)"),
+    PlannerKind("dreamer", f"{_PLANNER}:Rank", load="gpc.models.latent.module:load_latent", model="latent world model",
+                uses_reward=False, description="DreamerV3-style: the best of K proposals by the reward an RSSM imagines "
+                "(gpc train latent-world-model)"),
 )
 _REGISTRY: dict[str, PlannerKind] = {kind.name: kind for kind in BUILT_IN}
 _discovered: list[bool] = []

@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 
 from gpc.datasets.layout import TaskLayout
 from gpc.models.networks.encoders import EncoderConfig
+from gpc.models.rewards.stored import TASK_REWARD
 from gpc.models.training.config import OptimConfig, Profile
 from gpc.models.training.config_io import PlainConfig
 from gpc.models.training.ema import EMAConfig
 
 PROFILES = ("cpu", "paper", "tiny")
 OBS_TYPES = ("state", "keypoints", "image")
-TASK_REWARD = "gpc.harness.values:task_reward"  # module:function (task name) -> the task's state reward (training only)
 
 
 @dataclass(frozen=True)
@@ -96,13 +96,20 @@ def value_profile(name: str, obs_type: str, layout: TaskLayout, timeline: tuple[
         config, batch, steps = ValueConfig(task=layout.name, encoder=encoder, width=32, optim=optim), 32, 30
     else:
         raise ValueError(f"profile {name!r}: use one of {', '.join(PROFILES)}")
-    if obs_type != "state":
-        if not layout.state.agent_xy:
-            raise ValueError(f"obs {obs_type!r} reads the agent's position; task {layout.name} has none in its state")
-        config = dataclasses.replace(config, encoder=dataclasses.replace(config.encoder, agent_dims=len(layout.state.agent_xy)))
-    varies = goal == "random" or layout.goal is None
-    config = dataclasses.replace(config, encoder=dataclasses.replace(config.encoder, goal=varies), reward_goal=varies,
-                                 action_dim=layout.action.dim, n_obs_steps=timeline[0], n_action_steps=timeline[1])
+    encoder, varies = task_encoder(config.encoder, layout, goal)
+    config = dataclasses.replace(config, encoder=encoder, reward_goal=varies, action_dim=layout.action.dim,
+                                 n_obs_steps=timeline[0], n_action_steps=timeline[1])
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
     return Profile(config, batch, steps)
+
+
+def task_encoder(encoder: EncoderConfig, layout: TaskLayout, goal: str) -> tuple[EncoderConfig, bool]:
+    """The encoder for the task's observations (where the agent sits in its state; whether a goal drawn per episode
+    is read) and whether the goal varies, so the training reward must read it too."""
+    if encoder.obs_type != "state":
+        if not layout.state.agent_xy:
+            raise ValueError(f"obs {encoder.obs_type!r} reads the agent's position; task {layout.name} has none in its state")
+        encoder = dataclasses.replace(encoder, agent_dims=len(layout.state.agent_xy))
+    varies = goal == "random" or layout.goal is None
+    return dataclasses.replace(encoder, goal=varies), varies

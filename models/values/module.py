@@ -16,8 +16,6 @@ of the policy's K proposals by its first ``n_action_steps`` actions (``gpc.model
 
 from __future__ import annotations
 
-import functools
-import importlib
 from collections.abc import Mapping, Sequence
 from typing import Any, cast
 
@@ -31,6 +29,7 @@ from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.encoders import ObsEncoder
 from gpc.models.networks.mlp import MLP
+from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import Batch, Logs, TrainableModule
 from gpc.models.values.config import ValueConfig
@@ -133,12 +132,8 @@ class ValueModule(TrainableModule):
             if stored != shapes:
                 raise DataError(f"{source}: the run was trained on observation shapes {stored}, the datasets have {shapes}")
             return config
-        states = torch.as_tensor(arrays.data[STATE_KEY], dtype=torch.float32)
-        goals = torch.as_tensor(arrays.data[GOAL_KEY], dtype=torch.float32) if config.reward_goal else None
-        with torch.no_grad():
-            rewards = torch.cat([_reward_of(config)(states[i : i + 4096, None], None if goals is None else goals[i : i + 4096])
-                                 for i in range(0, len(states), 4096)])
-        scale = float(rewards.std()) if len(rewards) > 1 and float(rewards.std()) > 1e-6 else 1.0
+        goals = arrays.data[GOAL_KEY] if config.reward_goal else None
+        scale = reward_scale(config.reward, config.task, arrays.data[STATE_KEY], goals)
         encoder = dataclasses.replace(config.encoder, obs_shapes=tuple((k, shapes[k]) for k in config.obs_keys))
         return dataclasses.replace(config, encoder=encoder, reward_scale=scale)
 
@@ -169,7 +164,7 @@ class ValueModule(TrainableModule):
         chunk = self._chunk(batch[ACTION_KEY][:, h - 1 : h - 1 + n])
         goal = batch[GOAL_KEY][:, h - 1].float() if cfg.reward_goal else None
         with torch.no_grad():
-            reward = _reward_of(cfg)(batch[STATE_KEY][:, h : h + n].float(), goal) / cfg.reward_scale
+            reward = stored_reward(cfg.reward, cfg.task)(batch[STATE_KEY][:, h : h + n].float(), goal) / cfg.reward_scale
             target_net = cast(ValueNetwork, self.ema.model if self.ema is not None else self.model)
             target_q = target_net.q_values(target_net.features(now), chunk).min(dim=0).values
             backup = reward + cfg.chunk_discount * self.model.value(self.model.features(after))
@@ -205,20 +200,6 @@ class ValueModule(TrainableModule):
             return q, q[..., None]
 
         return score
-
-
-def _reward_of(config: ValueConfig) -> Any:
-    """The training reward ``config.reward`` names, ``(N, T, D)`` raw states and ``(N, G)`` goals -> ``(N,)``."""
-    return _reward(config.reward, config.task)
-
-
-@functools.lru_cache(maxsize=8)
-def _reward(spec: str, task: str) -> Any:
-    module, _, attr = spec.partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)(task)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"value function: cannot load its training reward {spec!r} ({exc})") from None
 
 
 def load_value(path: str, task: Any = None, device: str = "cpu") -> ValueModule:

@@ -1,4 +1,4 @@
-"""V-GPS's Q-function (IQL on stores) and the planner seam it plugs into, on the toy task (tests/toy_task.py)."""
+"""The baselines (V-GPS's IQL Q-function, a DreamerV3-style RSSM) and the planner seam they plug into, on the toy task."""
 
 from __future__ import annotations
 
@@ -14,6 +14,9 @@ from gpc.datasets.errors import DataError
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import EvalConfig, evaluate
 from gpc.harness.recipes import GT_SIM, make_recipe
+from gpc.models.latent.config import latent_profile
+from gpc.models.latent.module import LatentWorldModelModule
+from gpc.models.latent.rssm import symexp
 from gpc.models.planning import registry
 from gpc.models.planning.config import PlannerConfig
 from gpc.models.planning.planner import Rank
@@ -114,8 +117,61 @@ def test_a_users_planner_registers_by_name_and_runs_like_the_built_in_ones(train
     with pytest.raises(ValueError, match="vgps"):  # the known names, the baselines among them
         make_recipe(trained["policy"], "last")
     monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))  # this test's registration ends with it
-    register_planner(PlannerKind("last", "test_values:LastProposal", uses_reward=False, load="gpc.models.values.module:load_value"))
+    register_planner(PlannerKind("last", "test_baselines:LastProposal", uses_reward=False, load="gpc.models.values.module:load_value"))
     assert "last" in planner_names()
     recipe = make_recipe(trained["policy"], "last", world_model=str(trained["value"]), k=5)
     plan = recipe().plan({"state": np.array([[[20.0, 80.0], [21.0, 79.0]]])}, [torch.Generator().manual_seed(0)])
     assert int(plan.chosen[0]) == 4 and recipe.summary()["controller"] == "last K=5"
+
+
+def test_the_rssm_imagines_the_rewards_its_posterior_reads_from_the_true_observations(trained, latent):
+    """Along stored expert episodes' actions, the reward imagined with prior latents from the first observation agrees
+    with the reward head on the posterior latents of the observations really reached, and with the true reward: over
+    five episodes each errs well under half as much as predicting no change would."""
+    from gpc.datasets.store import EpisodeStore
+
+    model = LatentWorldModelModule.load_from_checkpoint(latent)
+    net = model.model
+    store = EpisodeStore.open(trained["tmp"] / "expert.zarr")
+    errors: dict[str, list[float]] = {"observed": [], "true": [], "still": []}
+    for episode in range(5):
+        start = int(store.episode_ends[episode - 1]) if episode else 0
+        states, actions = store.read("state")[start : start + 12], store.read("action")[start : start + 12]
+        imagined = model.imagine({"state": states[None, :1]}, torch.as_tensor(actions[None, None, :11]))[0, 0].numpy()
+        embedding = model._embed({"state": torch.as_tensor(states[None])})[0]
+        h, _ = net.initial(1, embedding.device)
+        _, z = net.observe(h, embedding[:1], mode=True)
+        observed = []
+        with torch.no_grad():
+            for t in range(1, 12):
+                h = net.step(h, z, model.normalizer.normalize("action", torch.as_tensor(actions[None, t - 1])))
+                _, z = net.observe(h, embedding[t : t + 1], mode=True)
+                observed.append(float(symexp(net.heads(h, z)[1])[0]) * model.config.reward_scale)
+        true = -np.linalg.norm(states[1:12] - np.asarray(GOAL), axis=1)  # the task's reward there
+        errors["observed"].append(float(np.abs(imagined - np.asarray(observed)).mean()))
+        errors["true"].append(float(np.abs(imagined - true).mean()))
+        errors["still"].append(float(np.abs(true - true[0]).mean()))
+    still = np.mean(errors["still"])
+    assert np.mean(errors["observed"]) < 0.4 * still and np.mean(errors["true"]) < 0.4 * still, errors
+
+
+@pytest.fixture(scope="module")
+def latent(trained) -> Path:
+    tmp = trained["tmp"]
+    config = latent_profile("tiny", "state", LAYOUT, lr=3e-3).config
+    run = RunConfig(run_dir=tmp / "latent", max_steps=800, batch_size=32, progress=False, accelerator="cpu", checkpoint_every=1000)
+    return train(LatentWorldModelModule, config, [tmp / "expert.zarr", tmp / "explore.zarr"], run).last  # 35 s on one thread
+
+
+def test_dreamer_ranks_the_chunk_that_reaches_the_goal_first_and_plugs_in_by_name(trained, latent):
+    model = LatentWorldModelModule.load_from_checkpoint(latent)
+    start = np.array([25.0, 75.0])
+    chunks = torch.tensor([[[list(GOAL)] * 8, [[0.0, 100.0]] * 8]])
+    scores = model.score(model.imagine({"state": np.array([[start, start]])}, chunks))[0]
+    assert float(scores[0]) > float(scores[1]), scores
+    recipe = make_recipe(trained["policy"], "dreamer", world_model=str(latent), k=5)
+    assert recipe.summary()["controller"] == "dreamer K=5" and "reward" not in recipe.summary()
+    result = evaluate(recipe, EvalConfig(seeds=SEEDS[:2], task="reach", max_steps=16, batch=2))
+    assert [e["seed"] for e in result["episodes"]] == list(SEEDS[:2])
+    with pytest.raises(DataError, match="value"):  # a value checkpoint where the latent model belongs
+        make_recipe(trained["policy"], "dreamer", world_model=str(trained["value"]))
