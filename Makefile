@@ -109,9 +109,13 @@ ifeq ($(PROFILE),smoke)
   ARGS.grad-4x3 := --planner grad -K 4 -M 3
   CEILING := gt-sim-K4
   ARGS.gt-sim-K4 := --planner gt-sim -K 4
-  VALUE := --profile tiny --max-steps 20
-  BASELINES := vgps-K4
+  TRAIN_ARGS.vgps := --profile tiny --max-steps 20
+  TRAIN_ARGS.latent := --profile tiny --max-steps 20
+  TRAIN_ARGS.ladi := --profile tiny --max-steps 20
+  BASELINES := vgps-K4 dreamer-K4 ladi-K4
   ARGS.vgps-K4 := --planner vgps -K 4
+  ARGS.dreamer-K4 := --planner dreamer -K 4
+  ARGS.ladi-K4 := --planner ladi -K 4
   BASELINE_RANK := rank-K4
   VPOLICY := --profile tiny --max-steps 10
   VPOLICY_DATA := $(RUN_DIR)/expert.zarr
@@ -147,8 +151,10 @@ else ifeq ($(PROFILE),paper)
   ARGS.grad-100x30 := --planner grad -K 100 -M 30
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
-  VALUE := --profile paper
-  BASELINES := vgps-K100
+  TRAIN_ARGS.vgps := --profile paper
+  TRAIN_ARGS.latent := --profile paper
+  TRAIN_ARGS.ladi := --profile paper
+  BASELINES := vgps-K100 dreamer-K100 ladi-K100
   BASELINE_RANK := rank-K100
   VPOLICY := --profile paper
   VPOLICY_DATA := $(if $(filter pusht,$(TASK)),$(HUMAN_DATA),$(RUN_DIR)/expert.zarr)
@@ -180,8 +186,10 @@ else ifeq ($(PROFILE),cpu)
   ARGS.grad-10x30 := --planner grad -K 10 -M 30
   CEILING := gt-sim-K100
   ARGS.gt-sim-K100 := --planner gt-sim -K 100
-  VALUE := --profile cpu
-  BASELINES := vgps-K100
+  TRAIN_ARGS.vgps := --profile cpu
+  TRAIN_ARGS.latent := --profile cpu
+  TRAIN_ARGS.ladi := --profile cpu
+  BASELINES := vgps-K100 dreamer-K100 ladi-K100
   BASELINE_RANK := rank-K100
   # The vision table (issue 19): an image policy on the human demonstrations, the visual world model in one
   # schedule (phase 1 then phase 2: about 2.8 h on a machine with native bf16, 5 h on an AVX2 one), fine-tuned on
@@ -211,7 +219,7 @@ help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
 	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
-	@echo "make reproduce-baselines  the paper's Table III baselines (V-GPS) on the state policy's proposals beside GPC-RANK and the ceiling (SEEDS=100000:100050: its protocol)"
+	@echo "make reproduce-baselines  the paper's Table III baselines (V-GPS, DreamerV3-style, LaDi-WM-style) on the state policy's proposals beside GPC-RANK and the ceiling (SEEDS=100000:100050: its protocol)"
 	@echo "make reproduce-pusht-vision   the same for TASK=pusht (the default)"
 	@echo "make restore-vision    put a task's vision checkpoints kept in artifacts/TASK-PROFILE/ where their stages look (then go on)"
 	@echo "make keep-vision       export a task's finished vision stages (and an unfinished training's state) and their results into artifacts/TASK-PROFILE/"
@@ -333,15 +341,28 @@ $(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULT
 # The paper's Table III baselines on the same proposals (issue 49): V-GPS ranks the policy's K proposals by an IQL
 # Q-function trained on the world model's data with the task's reward; beside GPC-RANK at the same K and the ceiling.
 ARGS.vgps-K100 := --planner vgps -K 100
-VALUE_RUN := $(subst /wm,/vgps,$(WM_RUN))$(GOAL_TAG)
-VALUE_CKPT := $(VALUE_RUN)/checkpoints/last.ckpt
+ARGS.dreamer-K100 := --planner dreamer -K 100
+ARGS.ladi-K100 := --planner ladi -K 100
+# Each baseline's model (a run beside the world model's, on its data): what trains it, and which planner ranks with it.
+TRAIN.vgps := value
+TRAIN.latent := latent-world-model
+TRAIN.ladi := latent-world-model --kind ladi
+MODEL.vgps := vgps
+MODEL.dreamer := latent
+MODEL.ladi := ladi
+model_of = $(MODEL.$(firstword $(subst -, ,$(1))))
+baseline_run = $(subst /wm,/$(1),$(WM_RUN))$(GOAL_TAG)
 BASELINE_TABLE := $(RESULTS)/$(TASK)_baselines.md
-$(VALUE_RUN).done: $(POLICY_DIR).done $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
-	if [ -f $(VALUE_CKPT) ]; then resume=--resume; fi; \
-	$(BIN)/gpc train value --task $(TASK) $(WM_DATA) --policy $(POLICY_CKPT) $(VALUE) --seed 0 --out $(VALUE_RUN) $$resume
-	touch $@
-$(foreach n,$(BASELINES),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(VALUE_RUN).done,\
-  $(POLICY_CKPT) $(ARGS.$(n)) --world-model $(VALUE_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
+define baseline_model
+$(call baseline_run,$(1)).done: $(POLICY_DIR).done $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(call baseline_run,$(1))/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train $(TRAIN.$(1)) --task $(TASK) $(WM_DATA) --policy $(POLICY_CKPT) $(TRAIN_ARGS.$(1)) --seed 0 \
+	  --out $(call baseline_run,$(1)) $$$$resume
+	touch $$@
+endef
+$(foreach m,vgps latent ladi,$(eval $(call baseline_model,$(m))))
+$(foreach n,$(BASELINES),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(call baseline_run,$(call model_of,$(n))).done,\
+  $(POLICY_CKPT) $(ARGS.$(n)) --world-model $(call baseline_run,$(call model_of,$(n)))/checkpoints/last.ckpt $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
 $(if $(filter $(BASELINE_RANK),$(PLANNERS)),,$(eval $(call eval_rule,$(BASELINE_RANK),$(RESULTS),$(POLICY_DIR).done $(WM_RUN)-phase2.done,\
   $(POLICY_CKPT) $(ARGS.$(BASELINE_RANK)) --world-model $(WM_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
 $(BASELINE_TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(BASELINES) $(BASELINE_RANK) $(CEILING),$(RESULTS)/$(n)/summary.json)

@@ -4,7 +4,7 @@ holds the others)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -87,22 +87,41 @@ def latent_world_model(
     dataset: Datasets,
     out: Out,
     task: Task = DEFAULT_TASK,
+    kind: str = typer.Option("rssm", "--kind", help="rssm: DreamerV3-style (--planner dreamer); ladi: LaDi-WM-style diffusion over the policy's frozen encoder's latents (--planner ladi; needs --policy)."),
     policy: PolicyOption = None,
     obs: ObsOption = None,
-    profile: str = typer.Option("cpu", "--profile", help="cpu (256-wide, 16x16 latents), paper (DreamerV3's medium sizes), tiny (tests)."),
+    profile: str = typer.Option("cpu", "--profile", help="cpu, paper (DreamerV3's medium sizes; Diffusion Policy's U-Net), tiny (tests)."),
     lr: LrOption = None,
     goal: GoalOption = "fixed",
     options: dict | None = None,
 ) -> None:
-    """Train a DreamerV3-style RSSM on Zarr stores with the task's reward; rank with
-    `gpc eval POLICY --planner dreamer --world-model OUT/checkpoints/last.ckpt`."""
+    """Train a latent world model on Zarr stores with the task's reward; rank with
+    `gpc eval POLICY --planner dreamer|ladi --world-model OUT/checkpoints/last.ckpt`."""
     from gpc.harness.training import train_component
-    from gpc.models.latent.config import latent_profile
-    from gpc.models.latent.module import LatentWorldModelModule
 
-    obs_type, goal, _ = _for_policy(policy, task, obs, goal)
-    chosen = latent_profile(profile, obs_type, get_task(task).layout, goal=goal, lr=lr)
-    echo_result(train_component(LatentWorldModelModule, chosen.config, dataset, run_config(chosen, out, options)))
+    layout = get_task(task).layout
+    if kind == "rssm":
+        from gpc.models.latent.config import latent_profile
+        from gpc.models.latent.module import LatentWorldModelModule
+
+        obs_type, goal, _ = _for_policy(policy, task, obs, goal)
+        chosen: Any = latent_profile(profile, obs_type, layout, goal=goal, lr=lr)
+        cls: Any = LatentWorldModelModule
+    elif kind == "ladi":
+        from gpc.harness.policies import load_policy
+        from gpc.models.ladi.config import ladi_profile
+        from gpc.models.ladi.module import LadiModule
+
+        if policy is None:
+            raise typer.BadParameter("the LaDi-WM-style model reads the policy's frozen encoder: give --policy", param_hint="--policy")
+        loaded = load_policy(policy, task, None)
+        if loaded.source.get("format", "gpc") != "gpc":
+            raise typer.BadParameter("--kind ladi reads a gpc policy checkpoint's encoder", param_hint="--policy")
+        timeline = (loaded.config.n_obs_steps, loaded.config.n_action_steps)
+        chosen, cls = ladi_profile(profile, layout, str(policy), loaded.config.encoder, timeline, lr=lr), LadiModule
+    else:
+        raise typer.BadParameter(f"{kind!r}: use rssm or ladi", param_hint="--kind")
+    echo_result(train_component(cls, chosen.config, dataset, run_config(chosen, out, options)))
 
 
 if __name__ == "__main__":  # `python -m gpc.cli.train policy ...` (DDP re-launches this way)

@@ -14,6 +14,8 @@ from gpc.datasets.errors import DataError
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.evaluation import EvalConfig, evaluate
 from gpc.harness.recipes import GT_SIM, make_recipe
+from gpc.models.ladi.config import ladi_profile
+from gpc.models.ladi.module import LadiModule
 from gpc.models.latent.config import latent_profile
 from gpc.models.latent.module import LatentWorldModelModule
 from gpc.models.latent.rssm import symexp
@@ -175,3 +177,36 @@ def test_dreamer_ranks_the_chunk_that_reaches_the_goal_first_and_plugs_in_by_nam
     assert [e["seed"] for e in result["episodes"]] == list(SEEDS[:2])
     with pytest.raises(DataError, match="value"):  # a value checkpoint where the latent model belongs
         make_recipe(trained["policy"], "dreamer", world_model=str(trained["value"]))
+
+
+@pytest.fixture(scope="module")
+def ladi(trained) -> Path:
+    tmp = trained["tmp"]
+    policy = PolicyModule.load_from_checkpoint(trained["policy"])
+    profile = ladi_profile("tiny", LAYOUT, str(trained["policy"]), policy.config.encoder, (2, 8), lr=3e-3)
+    run = RunConfig(run_dir=tmp / "ladi", max_steps=600, batch_size=64, progress=False, accelerator="cpu", checkpoint_every=1000)
+    return train(LadiModule, profile.config, [tmp / "expert.zarr", tmp / "explore.zarr"], run).last
+
+
+def test_ladi_predicts_where_a_chunk_leads_in_the_frozen_encoders_latents_and_ranks_by_it(trained, ladi):
+    """The latents it samples decode (the state policy's encoder is its normaliser) to the true positions, far
+    closer than "nothing moves" for most chunks (heading for the far corner, which the data hardly visits, it errs
+    most), and the chunk that heads for the goal outscores the one that leaves it."""
+    model = LadiModule.load_from_checkpoint(ladi)
+    start = np.array([30.0, 70.0])
+    targets = [GOAL, (0.0, 100.0), (30.0, 30.0), (70.0, 70.0)]
+    chunks = torch.tensor([[[list(t)] * 8 for t in targets]], dtype=torch.float32)
+    latents = model.predict({"state": np.array([[start, start]])}, chunks)[0, :, -1]  # (4, F): after the 8th action
+    net = model.ema.model if model.ema is not None else model.model
+    normalised = (latents + 1.0) / 2.0 * (net.high - net.low) + net.low
+    predicted = model.normalizer.unnormalize("state", normalised).numpy()
+    true = np.stack([_reached(start, c) for c in chunks[0].numpy()])
+    error, still = np.linalg.norm(predicted - true, axis=1), np.linalg.norm(true - start, axis=1)
+    assert np.median(error) < 0.4 * still.mean() and error[0] < 0.3 * still[0], (predicted, true)
+    scores = model.rewards(latents)
+    assert float(scores[0]) > float(scores[1]), scores
+    recipe = make_recipe(trained["policy"], "ladi", world_model=str(ladi), k=3)
+    assert recipe.summary()["controller"] == "ladi K=3"
+    plan = recipe().plan({"state": np.array([[start, start]])}, [torch.Generator().manual_seed(1)])
+    again = recipe().plan({"state": np.array([[start, start]])}, [torch.Generator().manual_seed(1)])
+    assert np.array_equal(plan.scores, again.scores)  # the futures' noise is fixed: a decision repeats

@@ -75,6 +75,9 @@ BUILT_IN = (
     PlannerKind("dreamer", f"{_PLANNER}:Rank", load="gpc.models.latent.module:load_latent", model="latent world model",
                 uses_reward=False, description="DreamerV3-style: the best of K proposals by the reward an RSSM imagines "
                 "(gpc train latent-world-model)"),
+    PlannerKind("ladi", f"{_PLANNER}:Rank", load="gpc.models.ladi.module:load_ladi", model="latent diffusion world model",
+                uses_reward=False, description="LaDi-WM-style: the best of K proposals by the reward of latents a diffusion "
+                "model predicts (gpc train latent-world-model --kind ladi)"),
 )
 _REGISTRY: dict[str, PlannerKind] = {kind.name: kind for kind in BUILT_IN}
 _discovered: list[bool] = []
