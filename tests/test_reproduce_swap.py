@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_reproduce import ROOT, run_state_smoke, run_vision_smoke
+from test_reproduce import ROOT, run_baselines_smoke, run_state_smoke, run_vision_smoke
 
 from gpc.datasets.store import EpisodeStore
 
@@ -22,6 +22,7 @@ def test_the_swap_task_runs_the_same_stages(tmp_path):
     """`make reproduce TASK=swap PROFILE=smoke`, then its vision pipeline: the same stages for a second task, its own
     tables, nothing named Push-T."""
     args = run_state_smoke("swap", "Cube & Sphere Swapping", tmp_path)
+    run_baselines_smoke(args, tmp_path, "swap")  # V-GPS, DreamerV3- and LaDi-WM-style on a two-object task
     venv = Path(sys.executable).parent.parent
     refused = subprocess.run(["make", "-s", "reproduce-pusht-vision", "TASK=swap", f"VENV={venv}"], cwd=ROOT, capture_output=True,
                              text=True, timeout=60)
