@@ -45,7 +45,7 @@ LAYOUT = TaskLayout(
 )
 
 # The paper's Table III row for this task (50 seeds, K=100, learned reward), keyed by gpc's controller labels.
-PAPER = {"draw-vision": {"bc": 0.724, "rank K=100": 0.767}}
+PAPER = {"draw-vision": {"bc": 0.724, "rank K=100": 0.767, "vgps K=100": 0.593, "ladi K=100": 0.680, "dreamer K=100": 0.732}}
 
 
 COLLECTORS = ScriptedCollectors(expert="gpc.tasks.draw.expert:DrawExpert", explore="gpc.tasks.draw.explore:ExplorePolicy",

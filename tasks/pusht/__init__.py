@@ -46,9 +46,10 @@ LAYOUT = TaskLayout(
 )
 
 
-# GPC's tables (Qi et al. 2026; 100 seeds; vision: IoU score), keyed by gpc's controller labels (`gpc compare --paper`).
+# GPC's tables (Qi et al. 2026; 100 seeds, Table III's 50; vision: IoU score), keyed by gpc's controller labels (`gpc compare --paper`).
 PAPER = {
-    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882},
+    "pusht-vision": {"bc": 0.642, "rank K=50": 0.698, "rank K=100": 0.739, "opt M=25": 0.791, "rank-opt 10x25": 0.882,
+                     "vgps K=100": 0.620, "ladi K=100": 0.683, "dreamer K=100": 0.649},  # Table III: 50 seeds
     "pusht-state": {
         "bc": 0.812, "rank K=100": 0.898, "rank K=1000": 0.932, "rank K=5000": 0.934, "opt M=30": 0.886,
         "rank-opt 10x30": 0.912, "rank-opt 20x30": 0.914, "rank-opt 30x20": 0.891, "gt-sim K=100": 0.952,

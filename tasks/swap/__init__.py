@@ -53,7 +53,7 @@ LAYOUT = TaskLayout(
 )
 
 # The paper's Table III row for this task (50 seeds, K=100, learned reward), keyed by gpc's controller labels.
-PAPER = {"swap-vision": {"bc": 0.680, "rank K=100": 0.730}}
+PAPER = {"swap-vision": {"bc": 0.680, "rank K=100": 0.730, "vgps K=100": 0.650, "ladi K=100": 0.410, "dreamer K=100": 0.700}}
 
 
 COLLECTORS = ScriptedCollectors(expert="gpc.tasks.swap.expert:SwapExpert", explore="gpc.tasks.swap.explore:ExplorePolicy",
