@@ -18,7 +18,7 @@ eval_app = typer.Typer(
 )
 
 Checkpoint = Annotated[Path, typer.Argument(help="Policy: a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy .ckpt.")]
-PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alone), rank, opt, rank-opt, gt-sim, cem, mppi or grad.")]
+PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alone), rank, opt, rank-opt, gt-sim, cem, mppi, grad; the baselines vgps, dreamer, ladi (--world-model: their checkpoint); or one registered by name.")]
 WorldModel = Annotated[str | None, typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
 K = Annotated[int | None, typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
 M = Annotated[int | None, typer.Option("--M", "-M", help="Gradient steps (opt, rank-opt, grad) or iterations (cem, mppi); default 30 (cem, mppi: 5).")]

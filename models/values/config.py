@@ -79,14 +79,15 @@ class ValueConfig(PlainConfig):
 
 def value_profile(name: str, obs_type: str, layout: TaskLayout, timeline: tuple[int, int], goal: str = "fixed",
                   lr: float | None = None) -> Profile[ValueConfig]:
-    """``cpu``: two 256-wide layers, 20,000 steps; ``paper``: 512-wide, 100,000; ``tiny``: tests. ``timeline``: the
+    """``cpu``: two 256-wide layers, 10,000 steps (about 8 minutes on 2 cores, what GPC's state world model takes);
+    ``paper``: 512-wide, 100,000; ``tiny``: tests. ``timeline``: the
     policy's (n_obs_steps, n_action_steps), so that the Q-function reads what the policy reads and scores what it executes."""
     if obs_type not in OBS_TYPES:
         raise ValueError(f"--obs {obs_type!r}: use one of {', '.join(OBS_TYPES)}")
     image = obs_type == "image"
     if name == "cpu":
         encoder = EncoderConfig(obs_type, resnet_width=32 if image else 64)
-        config, batch, steps = ValueConfig(task=layout.name, encoder=encoder), 64 if image else 256, 20000
+        config, batch, steps = ValueConfig(task=layout.name, encoder=encoder), 64 if image else 256, 10000
     elif name == "paper":
         config = ValueConfig(task=layout.name, encoder=EncoderConfig(obs_type), width=512)
         batch, steps = 256, 100000
