@@ -27,7 +27,7 @@ from gpc.datasets.windows import EpisodeArrays
 from gpc.models.ladi.config import LadiConfig
 from gpc.models.latent.rssm import symexp, symlog
 from gpc.models.networks.ddpm import DiffusionSampler, NoiseSchedule
-from gpc.models.networks.encoders import ObsEncoder
+from gpc.models.networks.encoders import ObsEncoder, normalized_obs
 from gpc.models.networks.mlp import MLP
 from gpc.models.networks.unet1d import ConditionalUnet1D
 from gpc.models.rewards.stored import reward_scale, stored_reward
@@ -152,13 +152,7 @@ class LadiModule(TrainableModule):
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the policy)")
 
     def _obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:
-        out = {}
-        for key in self.obs_keys:
-            if key not in obs:
-                raise ValueError(f"observation lacks key {key!r} (this model reads {', '.join(self.obs_keys)})")
-            value = torch.as_tensor(np.asarray(obs[key]) if not torch.is_tensor(obs[key]) else obs[key])
-            out[key] = self.normalizer.normalize(key, value.to(self.device, torch.float32))
-        return out
+        return normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "latent diffusion world model")
 
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg, net = self.config, self.model

@@ -26,6 +26,7 @@ from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.latent.config import LatentConfig
 from gpc.models.latent.rssm import RSSM, kl, symexp, symlog
+from gpc.models.networks.encoders import normalized_obs
 from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
 from gpc.models.training.module import Batch, Logs, TrainableModule
@@ -101,12 +102,7 @@ class LatentWorldModelModule(TrainableModule):
 
     def _embed(self, obs: Mapping[str, Any]) -> torch.Tensor:
         """``{key: (B, T, ...)}`` raw -> ``(B, T, hidden)`` embeddings."""
-        normal = {}
-        for key in self.obs_keys:
-            if key not in obs:
-                raise ValueError(f"observation lacks key {key!r} (this latent model reads {', '.join(self.obs_keys)})")
-            value = torch.as_tensor(np.asarray(obs[key]) if not torch.is_tensor(obs[key]) else obs[key])
-            normal[key] = self.normalizer.normalize(key, value.to(self.device, torch.float32))
+        normal = normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "latent world model")
         return self.model.embed(self.model.encoder(normal))
 
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:

@@ -25,10 +25,11 @@ centre-cropped in evaluation mode.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import cast
+from typing import Any, cast
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -162,3 +163,16 @@ class ObsEncoder(nn.Module):
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         parts = cast(Iterable[VectorPart | ImagePart], self.parts)  # what __init__ put there
         return torch.cat([part(obs[part.key]) for part in parts], dim=-1)
+
+
+def normalized_obs(normalizer: Any, keys: Iterable[str], obs: Mapping[str, Any], device: Any, reader: str) -> dict[str, torch.Tensor]:
+    """Raw observations ``{key: array or tensor}`` -> the ``keys`` an encoder reads, normalised float32 on ``device``;
+    a missing key fails naming the ``reader`` (a policy, a value function, ...) and what it reads."""
+    keys = tuple(keys)
+    out = {}
+    for key in keys:
+        if key not in obs:
+            raise ValueError(f"observation lacks key {key!r} (this {reader} reads {', '.join(keys)})")
+        value = obs[key] if torch.is_tensor(obs[key]) else torch.as_tensor(np.asarray(obs[key]))
+        out[key] = normalizer.normalize(key, value.to(device, torch.float32))
+    return out

@@ -21,6 +21,7 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.ddpm import DiffusionSampler, SamplerConfig
+from gpc.models.networks.encoders import normalized_obs
 from gpc.models.policy.config import PolicyConfig
 from gpc.models.policy.denoiser import ActionDenoiser
 from gpc.models.training.config import RunConfig
@@ -102,13 +103,7 @@ class PolicyModule(TrainableModule):
         return config
 
     def _normalize_obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:
-        out = {}
-        for key in self.obs_keys:
-            if key not in obs:
-                raise ValueError(f"observation lacks key {key!r} (this policy reads {', '.join(self.obs_keys)})")
-            value = torch.as_tensor(np.asarray(obs[key]) if not torch.is_tensor(obs[key]) else obs[key])
-            out[key] = self.normalizer.normalize(key, value.to(self.device, torch.float32))
-        return out
+        return normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "policy")
 
     def _split_batch(self, batch: Mapping[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         return self._normalize_obs(batch), self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY].float())

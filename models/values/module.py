@@ -27,7 +27,7 @@ from gpc.datasets.datamodule import DataConfig
 from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
-from gpc.models.networks.encoders import ObsEncoder
+from gpc.models.networks.encoders import ObsEncoder, normalized_obs
 from gpc.models.networks.mlp import MLP
 from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
@@ -144,14 +144,8 @@ class ValueModule(TrainableModule):
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the data)")
 
     def _obs(self, obs: Mapping[str, Any], steps: slice | None = None) -> dict[str, torch.Tensor]:
-        out = {}
-        for key in self.obs_keys:
-            if key not in obs:
-                raise ValueError(f"observation lacks key {key!r} (this value function reads {', '.join(self.obs_keys)})")
-            value = torch.as_tensor(np.asarray(obs[key]) if not torch.is_tensor(obs[key]) else obs[key])
-            value = value.to(self.device, torch.float32)
-            out[key] = self.normalizer.normalize(key, value[:, steps] if steps is not None else value)
-        return out
+        out = normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "value function")
+        return {k: v[:, steps] for k, v in out.items()} if steps is not None else out
 
     def _chunk(self, actions: torch.Tensor) -> torch.Tensor:
         """``(..., n, A)`` raw actions -> ``(..., n * A)`` normalised."""
