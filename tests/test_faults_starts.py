@@ -112,7 +112,8 @@ def test_a_lerobot_policy_given_to_export_is_named_as_such(tmp_path):
 
 def test_an_unknown_planner_lists_every_accepted_value(tiny_pusht, tmp_path):
     line = one_line(inline(*eval_args(tiny_pusht, tmp_path / "res"), "--planner", "foo"), 2, "--planner 'foo'")
-    assert all(f" {name}" in line for name in ("bc,", "rank,", "opt,", "rank-opt,", "gt-sim,", "cem,", "mppi,", "grad"))
+    names = ("bc,", "rank,", "opt,", "rank-opt,", "gt-sim,", "cem,", "mppi,", "grad,", "vgps,", "dreamer,", "ladi")
+    assert all(f" {name}" in line for name in names)
     assert not list(tmp_path.iterdir())
 
 

@@ -39,8 +39,9 @@ DEVICES = ("cpu", "cuda")  # where the controller's networks run (--device)
 
 
 def planner_choices() -> tuple[str, ...]:
-    """Every --planner value: the policy alone, the registered planners, and the ground-truth ceiling."""
-    return (BC, *planner_names(), GT_SIM)
+    """Every --planner value: the policy alone, GPC's planners, the ground-truth ceiling, then the other registered ones."""
+    names = planner_names()
+    return (BC, *names[:3], GT_SIM, *names[3:])
 
 
 @dataclass(frozen=True)
