@@ -27,12 +27,13 @@ from gpc.datasets.windows import EpisodeArrays
 from gpc.models.ladi.config import LadiConfig
 from gpc.models.latent.rssm import symexp, symlog
 from gpc.models.networks.ddpm import DiffusionSampler, NoiseSchedule
-from gpc.models.networks.encoders import ObsEncoder, normalized_obs
+from gpc.models.networks.encoders import ObsEncoder
 from gpc.models.networks.mlp import MLP
 from gpc.models.networks.unet1d import ConditionalUnet1D
 from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
-from gpc.models.training.module import Batch, Logs, TrainableModule
+from gpc.models.training.module import Batch, Logs
+from gpc.models.training.observing import ObservingModule
 
 KIND = "ladi-world-model"
 ACTION_KEY, STATE_KEY, GOAL_KEY, IMAGE_KEY = "action", "state", "goal", "img"
@@ -63,11 +64,10 @@ class LadiNetwork(nn.Module):
         return 2.0 * (features - self.low) / (self.high - self.low).clamp_min(1e-6) - 1.0
 
 
-class LadiModule(TrainableModule):
+class LadiModule(ObservingModule):
     """A latent diffusion world model over the policy's frozen encoder; also the ``Scorer`` of ``--planner ladi``."""
 
-    KIND, WHAT = KIND, "latent diffusion world model"
-    differentiable = False  # ranked, as LaDi-WM's planner ranks; never ascended here
+    KIND, WHAT, CONFIG = KIND, "latent diffusion world model", LadiConfig
 
     def __init__(self, config: LadiConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
                  data: Mapping[str, Any] | None = None) -> None:
@@ -81,29 +81,8 @@ class LadiModule(TrainableModule):
         self.track_ema()
 
     @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.config.obs_keys
-
-    @property
     def n_obs_steps(self) -> int:
         return self.config.n_obs_steps
-
-    @property
-    def obs_key(self) -> str:
-        """The observation family (images or states), for the policy pairing check."""
-        return IMAGE_KEY if self.config.obs_type == "image" else STATE_KEY
-
-    # ------------------------------------------------------------------ the training contract
-    @property
-    def network(self) -> nn.Module:
-        return self.model
-
-    def record(self) -> dict[str, Any]:
-        return {"obs": self.config.obs_type}
-
-    @classmethod
-    def config_from_dict(cls, data: Any) -> LadiConfig:
-        return LadiConfig.from_dict(data)
 
     @classmethod
     def data_config(cls, config: LadiConfig, datasets: tuple[str, ...], run: RunConfig, split: tuple[int, float]) -> DataConfig:
@@ -150,9 +129,6 @@ class LadiModule(TrainableModule):
         missing = [k for k in self.obs_keys + (ACTION_KEY,) if k not in self.normalizer.keys()]
         if missing:
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the policy)")
-
-    def _obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:
-        return normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "latent diffusion world model")
 
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg, net = self.config, self.model

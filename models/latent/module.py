@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from gpc.datasets.datamodule import DataConfig
 from gpc.datasets.errors import DataError
@@ -26,20 +25,19 @@ from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.latent.config import LatentConfig
 from gpc.models.latent.rssm import RSSM, kl, symexp, symlog
-from gpc.models.networks.encoders import normalized_obs
 from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
-from gpc.models.training.module import Batch, Logs, TrainableModule
+from gpc.models.training.module import Batch, Logs
+from gpc.models.training.observing import ObservingModule
 
 KIND = "latent-world-model"
 ACTION_KEY, STATE_KEY, GOAL_KEY, IMAGE_KEY = "action", "state", "goal", "img"
 
 
-class LatentWorldModelModule(TrainableModule):
+class LatentWorldModelModule(ObservingModule):
     """An RSSM for one task and observation type; also the ``Scorer`` its planner (``dreamer``) ranks with."""
 
-    KIND, WHAT = KIND, "latent world model"
-    differentiable = False  # ranked in imagination, as DreamerV3 plans; never ascended here
+    KIND, WHAT, CONFIG = KIND, "latent world model", LatentConfig
     n_obs_steps = 1  # a decision starts from the current observation
 
     def __init__(self, config: LatentConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
@@ -51,27 +49,6 @@ class LatentWorldModelModule(TrainableModule):
         self.config: LatentConfig = config
         self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
         self.model = RSSM(config, config.state_dim)
-
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.config.obs_keys
-
-    @property
-    def obs_key(self) -> str:
-        """The observation family (images or states), for the policy pairing check."""
-        return IMAGE_KEY if self.config.obs_type == "image" else STATE_KEY
-
-    # ------------------------------------------------------------------ the training contract
-    @property
-    def network(self) -> nn.Module:
-        return self.model
-
-    def record(self) -> dict[str, Any]:
-        return {"obs": self.config.obs_type}
-
-    @classmethod
-    def config_from_dict(cls, data: Any) -> LatentConfig:
-        return LatentConfig.from_dict(data)
 
     @classmethod
     def data_config(cls, config: LatentConfig, datasets: tuple[str, ...], run: RunConfig, split: tuple[int, float]) -> DataConfig:
@@ -102,8 +79,7 @@ class LatentWorldModelModule(TrainableModule):
 
     def _embed(self, obs: Mapping[str, Any]) -> torch.Tensor:
         """``{key: (B, T, ...)}`` raw -> ``(B, T, hidden)`` embeddings."""
-        normal = normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "latent world model")
-        return self.model.embed(self.model.encoder(normal))
+        return self.model.embed(self.model.encoder(self._obs(obs)))
 
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg, net = self.config, self.model

@@ -27,11 +27,12 @@ from gpc.datasets.datamodule import DataConfig
 from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
-from gpc.models.networks.encoders import ObsEncoder, normalized_obs
+from gpc.models.networks.encoders import ObsEncoder
 from gpc.models.networks.mlp import MLP
 from gpc.models.rewards.stored import reward_scale, stored_reward
 from gpc.models.training.config import RunConfig
-from gpc.models.training.module import Batch, Logs, TrainableModule
+from gpc.models.training.module import Batch, Logs
+from gpc.models.training.observing import ObservingModule
 from gpc.models.values.config import ValueConfig
 
 KIND = "value"
@@ -68,11 +69,10 @@ def expectile_loss(diff: torch.Tensor, tau: float) -> torch.Tensor:
     return (weight * diff.pow(2)).mean()
 
 
-class ValueModule(TrainableModule):
+class ValueModule(ObservingModule):
     """V-GPS's Q-function for one task and observation type; also the ``Scorer`` its planner ranks with."""
 
-    KIND, WHAT = KIND, "value function"
-    differentiable = False  # V-GPS ranks; it never ascends its Q
+    KIND, WHAT, CONFIG = KIND, "value function", ValueConfig
 
     def __init__(self, config: ValueConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
                  data: Mapping[str, Any] | None = None) -> None:
@@ -86,31 +86,9 @@ class ValueModule(TrainableModule):
         self.track_ema()
         self._reward: Any = None
 
-    # ------------------------------------------------------------------ what it reads
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.config.obs_keys
-
     @property
     def n_obs_steps(self) -> int:
         return self.config.n_obs_steps
-
-    @property
-    def obs_key(self) -> str:
-        """The observation family (images or states), for the policy pairing check."""
-        return IMAGE_KEY if self.config.obs_type == "image" else STATE_KEY
-
-    # ------------------------------------------------------------------ the training contract
-    @property
-    def network(self) -> nn.Module:
-        return self.model
-
-    def record(self) -> dict[str, Any]:
-        return {"obs": self.config.obs_type}
-
-    @classmethod
-    def config_from_dict(cls, data: Any) -> ValueConfig:
-        return ValueConfig.from_dict(data)
 
     @classmethod
     def data_config(cls, config: ValueConfig, datasets: tuple[str, ...], run: RunConfig, split: tuple[int, float]) -> DataConfig:
@@ -143,9 +121,8 @@ class ValueModule(TrainableModule):
         if missing:
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the data)")
 
-    def _obs(self, obs: Mapping[str, Any], steps: slice | None = None) -> dict[str, torch.Tensor]:
-        out = normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "value function")
-        return {k: v[:, steps] for k, v in out.items()} if steps is not None else out
+    def _steps(self, obs: Mapping[str, Any], steps: slice) -> dict[str, torch.Tensor]:
+        return {k: v[:, steps] for k, v in self._obs(obs).items()}
 
     def _chunk(self, actions: torch.Tensor) -> torch.Tensor:
         """``(..., n, A)`` raw actions -> ``(..., n * A)`` normalised."""
@@ -154,7 +131,7 @@ class ValueModule(TrainableModule):
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg = self.config
         h, n = cfg.n_obs_steps, cfg.n_action_steps
-        now, after = self._obs(batch, slice(0, h)), self._obs(batch, slice(n, n + h))
+        now, after = self._steps(batch, slice(0, h)), self._steps(batch, slice(n, n + h))
         chunk = self._chunk(batch[ACTION_KEY][:, h - 1 : h - 1 + n])
         goal = batch[GOAL_KEY][:, h - 1].float() if cfg.reward_goal else None
         with torch.no_grad():
