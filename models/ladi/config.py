@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from gpc.datasets.layout import TaskLayout
 from gpc.models.networks.ddpm import NoiseConfig, SamplerConfig
-from gpc.models.networks.encoders import EncoderConfig
+from gpc.models.networks.encoders import EncoderConfig, ReadsObservations
 from gpc.models.networks.unet1d import UNetConfig
 from gpc.models.rewards.stored import TASK_REWARD
 from gpc.models.training.config import OptimConfig, Profile
@@ -27,7 +27,7 @@ AGGREGATES = ("final", "sum")
 
 
 @dataclass(frozen=True)
-class LadiConfig(PlainConfig):
+class LadiConfig(PlainConfig, ReadsObservations):
     """The latent diffusion model, its reward head, and how a chunk is scored."""
 
     task: str = ""  # task the model is trained for; checked when a checkpoint is loaded
@@ -58,14 +58,6 @@ class LadiConfig(PlainConfig):
             raise ValueError(f"aggregate {self.aggregate!r}: use one of {', '.join(AGGREGATES)}")
         if not self.reward_scale > 0:
             raise ValueError(f"reward_scale {self.reward_scale}: must be > 0")
-
-    @property
-    def obs_type(self) -> str:
-        return self.encoder.obs_type
-
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.encoder.keys
 
 
 def ladi_profile(name: str, layout: TaskLayout, policy: str, encoder: EncoderConfig, timeline: tuple[int, int],

@@ -21,7 +21,6 @@ import torch.nn.functional as F
 from torch import nn
 
 from gpc.datasets.datamodule import DataConfig, EpisodeDataModule
-from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.ladi.config import LadiConfig
@@ -95,10 +94,7 @@ class LadiModule(ObservingModule):
     @classmethod
     def fit_to_data(cls, config: LadiConfig, arrays: EpisodeArrays, source: str, resumed: bool) -> LadiConfig:
         """The stores must hold what the policy's encoder reads; the reward's scale comes from their states."""
-        shapes = {k: tuple(int(s) for s in arrays.data[k].shape[1:]) for k in config.obs_keys}
-        stored = {k: tuple(v) for k, v in config.encoder.obs_shapes}
-        if stored != shapes:
-            raise DataError(f"{source}: the policy's encoder reads observation shapes {stored}, the datasets have {shapes}")
+        config = config.fitted_to(arrays.data, source, fixed=True)  # the policy's encoder, as it was built
         if resumed:
             return config
         goals = arrays.data[GOAL_KEY] if config.reward_goal else None

@@ -17,7 +17,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from gpc.datasets.layout import TaskLayout
-from gpc.models.networks.encoders import EncoderConfig
+from gpc.models.networks.encoders import EncoderConfig, ReadsObservations
 from gpc.models.rewards.stored import TASK_REWARD
 from gpc.models.training.config import OptimConfig, Profile
 from gpc.models.training.config_io import PlainConfig
@@ -27,7 +27,7 @@ AGGREGATES = ("sum", "final")
 
 
 @dataclass(frozen=True)
-class LatentConfig(PlainConfig):
+class LatentConfig(PlainConfig, ReadsObservations):
     """The RSSM's sizes, its losses' weights, and how imagined rewards rank a chunk."""
 
     task: str = ""  # task the model is trained for; checked when a checkpoint is loaded
@@ -69,14 +69,6 @@ class LatentConfig(PlainConfig):
             raise ValueError(f"aggregate {self.aggregate!r}: use one of {', '.join(AGGREGATES)}")
         if not 0.0 <= self.discount <= 1.0 or not self.reward_scale > 0:
             raise ValueError("discount must lie in [0, 1] and reward_scale be > 0")
-
-    @property
-    def obs_type(self) -> str:
-        return self.encoder.obs_type
-
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.encoder.keys
 
     @property
     def stoch(self) -> int:

@@ -60,17 +60,14 @@ class LatentWorldModelModule(ObservingModule):
     @classmethod
     def fit_to_data(cls, config: LatentConfig, arrays: EpisodeArrays, source: str, resumed: bool) -> LatentConfig:
         """Observation shapes and the state's width from the stores, and the reward's scale over every stored step."""
-        shapes = {k: tuple(int(s) for s in arrays.data[k].shape[1:]) for k in config.obs_keys}
         state_dim = int(arrays.data[STATE_KEY].shape[1])
         if resumed:
-            stored = {k: tuple(v) for k, v in config.encoder.obs_shapes}
-            if stored != shapes or config.state_dim != state_dim:
-                raise DataError(f"{source}: the run was trained on observation shapes {stored}, the datasets have {shapes}")
-            return config
+            if config.state_dim != state_dim:
+                raise DataError(f"{source}: the run was trained on states of {config.state_dim} entries, the datasets have {state_dim}")
+            return config.fitted_to(arrays.data, source, fixed=True)
         goals = arrays.data[GOAL_KEY] if config.reward_goal else None
         scale = reward_scale(config.reward, config.task, arrays.data[STATE_KEY], goals)
-        encoder = dataclasses.replace(config.encoder, obs_shapes=tuple((k, shapes[k]) for k in config.obs_keys))
-        return dataclasses.replace(config, encoder=encoder, state_dim=state_dim, reward_scale=scale)
+        return dataclasses.replace(config.fitted_to(arrays.data, source, fixed=False), state_dim=state_dim, reward_scale=scale)
 
     def check_ready(self) -> None:
         missing = [k for k in self.obs_keys + (ACTION_KEY, STATE_KEY) if k not in self.normalizer.keys()]

@@ -25,6 +25,7 @@ centre-cropped in evaluation mode.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
@@ -33,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from gpc.datasets.errors import DataError
 from gpc.models.networks.resnet import NORMS, ResNet18Keypoints
 
 OBS_KEYS: dict[str, tuple[str, ...]] = {
@@ -176,3 +178,37 @@ def normalized_obs(normalizer: Any, keys: Iterable[str], obs: Mapping[str, Any],
         value = obs[key] if torch.is_tensor(obs[key]) else torch.as_tensor(np.asarray(obs[key]))
         out[key] = normalizer.normalize(key, value.to(device, torch.float32))
     return out
+
+
+class ReadsObservations:
+    """Mixin of the frozen configs that hold an ``encoder`` (policy, value function, latent models): what it reads,
+    and its step shapes fitted to the stores once (a resumed or borrowed encoder must find the shapes it was built for)."""
+
+    encoder: EncoderConfig
+
+    @property
+    def obs_type(self) -> str:
+        return self.encoder.obs_type
+
+    @property
+    def obs_keys(self) -> tuple[str, ...]:
+        return self.encoder.keys
+
+    def with_obs_shapes(self, shapes: Mapping[str, tuple[int, ...]]) -> Any:
+        """A copy whose encoder knows the step shape of each observation key it reads."""
+        missing = [k for k in self.obs_keys if k not in shapes]
+        if missing:
+            raise ValueError(f"obs type {self.obs_type!r} needs data key(s) {', '.join(missing)}")
+        pairs = tuple((k, tuple(int(s) for s in shapes[k])) for k in self.obs_keys)
+        return dataclasses.replace(cast(Any, self), encoder=dataclasses.replace(self.encoder, obs_shapes=pairs))
+
+    def fitted_to(self, data: Mapping[str, np.ndarray], source: str, fixed: bool) -> Any:
+        """The shapes of ``data``'s rows filled in; ``fixed`` (a resumed run, a frozen encoder): they must equal the
+        ones held (``DataError`` naming ``source`` otherwise)."""
+        shapes = {k: tuple(int(s) for s in data[k].shape[1:]) for k in self.obs_keys}
+        if not fixed:
+            return self.with_obs_shapes(shapes)
+        held = {k: tuple(v) for k, v in self.encoder.obs_shapes}
+        if held != shapes:
+            raise DataError(f"{source}: the encoder was built for observation shapes {held}, the datasets have {shapes}")
+        return self

@@ -7,12 +7,11 @@ from the training data (``with_obs_shapes``) so a checkpoint alone can rebuild t
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from gpc.datasets.layout import TaskLayout
 from gpc.models.networks.ddpm import NoiseConfig, SamplerConfig
-from gpc.models.networks.encoders import EncoderConfig
+from gpc.models.networks.encoders import EncoderConfig, ReadsObservations
 from gpc.models.networks.unet1d import UNetConfig
 from gpc.models.training.config import OptimConfig, Profile
 from gpc.models.training.config_io import PlainConfig
@@ -23,7 +22,7 @@ GOALS = ("fixed", "random")
 
 
 @dataclass(frozen=True)
-class PolicyConfig(PlainConfig):
+class PolicyConfig(PlainConfig, ReadsObservations):
     """Diffusion Policy: a chunk of ``horizon`` actions denoised given ``n_obs_steps`` observations.
 
     Timeline (n_obs_steps 2, horizon 16, n_action_steps 8), index 0 = oldest observation::
@@ -58,22 +57,6 @@ class PolicyConfig(PlainConfig):
         self.unet.check_horizon(self.horizon)
         if self.sampler.steps > self.noise.train_steps:
             raise ValueError(f"sampler steps {self.sampler.steps} exceed the {self.noise.train_steps} training steps")
-
-    @property
-    def obs_type(self) -> str:
-        return self.encoder.obs_type
-
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.encoder.keys
-
-    def with_obs_shapes(self, shapes: Mapping[str, tuple[int, ...]]) -> PolicyConfig:
-        """A copy whose encoder knows the step shape of each observation key it reads."""
-        missing = [k for k in self.obs_keys if k not in shapes]
-        if missing:
-            raise ValueError(f"obs type {self.obs_type!r} needs data key(s) {', '.join(missing)}")
-        pairs = tuple((k, tuple(int(s) for s in shapes[k])) for k in self.obs_keys)
-        return dataclasses.replace(self, encoder=dataclasses.replace(self.encoder, obs_shapes=pairs))
 
 
 def policy_profile(name: str, obs_type: str, layout: TaskLayout, goal: str = "fixed",

@@ -17,7 +17,6 @@ import torch
 from torch import nn
 
 from gpc.datasets.datamodule import DataConfig
-from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.ddpm import DiffusionSampler, SamplerConfig
@@ -94,13 +93,7 @@ class PolicyModule(TrainableModule):
     @classmethod
     def fit_to_data(cls, config: PolicyConfig, arrays: EpisodeArrays, source: str, resumed: bool) -> PolicyConfig:
         """The encoder learns each observation key's step shape from the stores (a resumed run must see the same)."""
-        shapes = {k: tuple(arrays.data[k].shape[1:]) for k in config.obs_keys}
-        if not resumed:
-            return config.with_obs_shapes(shapes)
-        stored = {k: tuple(v) for k, v in config.encoder.obs_shapes}
-        if stored != shapes:
-            raise DataError(f"{source}: the run was trained on observation shapes {stored}, the datasets have {shapes}")
-        return config
+        return config.fitted_to(arrays.data, source, fixed=resumed)
 
     def _normalize_obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:
         return normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "policy")

@@ -15,7 +15,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from gpc.datasets.layout import TaskLayout
-from gpc.models.networks.encoders import EncoderConfig
+from gpc.models.networks.encoders import EncoderConfig, ReadsObservations
 from gpc.models.rewards.stored import TASK_REWARD
 from gpc.models.training.config import OptimConfig, Profile
 from gpc.models.training.config_io import PlainConfig
@@ -26,7 +26,7 @@ OBS_TYPES = ("state", "keypoints", "image")
 
 
 @dataclass(frozen=True)
-class ValueConfig(PlainConfig):
+class ValueConfig(PlainConfig, ReadsObservations):
     """A Q-function of (observation history, executed chunk) and a state value V, trained by IQL."""
 
     task: str = ""  # task the value function is trained for; checked when a checkpoint is loaded
@@ -58,14 +58,6 @@ class ValueConfig(PlainConfig):
             raise ValueError(f"target_decay {self.target_decay}: must lie in [0, 1)")
         if not self.reward_scale > 0:
             raise ValueError(f"reward_scale {self.reward_scale}: must be > 0")
-
-    @property
-    def obs_type(self) -> str:
-        return self.encoder.obs_type
-
-    @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.encoder.keys
 
     @property
     def ema(self) -> EMAConfig:

@@ -24,7 +24,6 @@ import torch
 from torch import nn
 
 from gpc.datasets.datamodule import DataConfig
-from gpc.datasets.errors import DataError
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.encoders import ObsEncoder
@@ -104,16 +103,11 @@ class ValueModule(ObservingModule):
         """Observation shapes from the stores, and the reward's scale (its standard deviation over every stored step)."""
         import dataclasses
 
-        shapes = {k: tuple(int(s) for s in arrays.data[k].shape[1:]) for k in config.obs_keys}
         if resumed:
-            stored = {k: tuple(v) for k, v in config.encoder.obs_shapes}
-            if stored != shapes:
-                raise DataError(f"{source}: the run was trained on observation shapes {stored}, the datasets have {shapes}")
-            return config
+            return config.fitted_to(arrays.data, source, fixed=True)
         goals = arrays.data[GOAL_KEY] if config.reward_goal else None
         scale = reward_scale(config.reward, config.task, arrays.data[STATE_KEY], goals)
-        encoder = dataclasses.replace(config.encoder, obs_shapes=tuple((k, shapes[k]) for k in config.obs_keys))
-        return dataclasses.replace(config, encoder=encoder, reward_scale=scale)
+        return dataclasses.replace(config.fitted_to(arrays.data, source, fixed=False), reward_scale=scale)
 
     def check_ready(self) -> None:
         keys = self.obs_keys + (ACTION_KEY,)
