@@ -117,6 +117,7 @@ ifeq ($(PROFILE),smoke)
   ARGS.dreamer-K4 := --planner dreamer -K 4
   ARGS.ladi-K4 := --planner ladi -K 4
   BASELINE_GPC := rank-K4
+  VBASELINE_GPC := vrank-K3
   VPOLICY := --profile tiny --max-steps 10
   VPOLICY_DATA := $(RUN_DIR)/expert.zarr
   VWM1 := --profile tiny --max-steps 10
@@ -156,6 +157,7 @@ else ifeq ($(PROFILE),paper)
   TRAIN_ARGS.ladi := --profile paper
   BASELINES := vgps-K100 dreamer-K100 ladi-K100
   BASELINE_GPC := rank-K100 rank-opt-10x30
+  VBASELINE_GPC := vrank-K100 vrank-opt-10x25
   VPOLICY := --profile paper
   VPOLICY_DATA := $(if $(filter pusht,$(TASK)),$(HUMAN_DATA),$(RUN_DIR)/expert.zarr)
   VWM1 := --profile paper
@@ -191,6 +193,7 @@ else ifeq ($(PROFILE),cpu)
   TRAIN_ARGS.ladi := --profile cpu
   BASELINES := vgps-K100 dreamer-K100 ladi-K100
   BASELINE_GPC := rank-K100 rank-opt-10x30
+  VBASELINE_GPC := vrank-K100 vrank-opt-10x25
   # The vision table (issue 19): an image policy on the human demonstrations, the visual world model in one
   # schedule (phase 1 then phase 2: about 2.8 h on a machine with native bf16, 5 h on an AVX2 one), fine-tuned on
   # GPC-OPT's own episodes and distilled to one step, 100 test seeds; the image policy 9,000 steps (0.55 s each on
@@ -213,13 +216,14 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-baselines reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-baselines reproduce-baselines-vision reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
 
 help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
 	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make reproduce-baselines  the paper's Table III baselines (V-GPS, DreamerV3-style, LaDi-WM-style) on the state policy's proposals beside GPC-RANK and the ceiling (SEEDS=100000:100050: its protocol)"
+	@echo "make reproduce-baselines-vision  the same baselines on the image policy's proposals, beside the vision table's GPC rows (VBASELINE_SEEDS=100000:100050)"
 	@echo "make reproduce-pusht-vision   the same for TASK=pusht (the default)"
 	@echo "make restore-vision    put a task's vision checkpoints kept in artifacts/TASK-PROFILE/ where their stages look (then go on)"
 	@echo "make keep-vision       export a task's finished vision stages (and an unfinished training's state) and their results into artifacts/TASK-PROFILE/"
@@ -479,6 +483,36 @@ $(VTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VPLANNERS),$(VRESULTS)/$(n)/
 reproduce-vision: $(VTABLE)
 	@cat $(VTABLE)
 
+# The Table III baselines on the image policy's proposals (issue 49): each model trained on the visual world model's
+# data, reading what the image policy reads; evaluated on VBASELINE_SEEDS (Table III's 50) and paired there with the
+# vision table's BC, GPC rows and ceiling (evaluated on more seeds: read on those alone, not run again).
+VBASELINE_SEEDS ?= $(if $(filter smoke,$(PROFILE)),$(word 2,$(VEVAL)),100000:100050)
+VBEVAL := --seeds $(VBASELINE_SEEDS) $(wordlist 3,$(words $(VEVAL)),$(VEVAL))
+VBRESULTS := $(VSHARED)-baselines
+VBTABLE := $(VBRESULTS)/$(TASK)_baselines_vision.md
+VBASELINES := $(addprefix v,$(BASELINES))
+vbaseline_run = $(RUN_DIR)/$(1)-visual
+define vbaseline_model
+$(call vbaseline_run,$(1)).done: $(RUN_DIR)/vpolicy.done $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
+	if [ -f $(call vbaseline_run,$(1))/checkpoints/last.ckpt ]; then resume=--resume; fi; \
+	$(BIN)/gpc train $(TRAIN.$(1)) --task $(TASK) $(WM_DATA) --policy $(VPOLICY_CKPT) $(TRAIN_ARGS.$(1)) --seed 0 \
+	  --out $(call vbaseline_run,$(1)) $$$$resume
+	touch $$@
+endef
+$(foreach m,vgps latent ladi,$(eval $(call vbaseline_model,$(m))))
+$(foreach n,$(VBASELINES),$(eval $(call eval_rule,$(n),$(VBRESULTS),$(RUN_DIR)/vpolicy.done \
+  $(call vbaseline_run,$(call model_of,$(n:v%=%))).done,$(VPOLICY_CKPT) $(ARGS.$(n:v%=%)) \
+  --world-model $(call vbaseline_run,$(call model_of,$(n:v%=%)))/checkpoints/last.ckpt $(VBEVAL),$(VBASELINE_SEEDS))))
+$(VBTABLE): $(VSHARED)/bc/summary.json $(foreach n,$(VBASELINES),$(VBRESULTS)/$(n)/summary.json) \
+  $(foreach n,$(VBASELINE_GPC),$(VRESULTS)/$(n)/summary.json) $(VSHARED)/$(VCEILING)/summary.json
+	$(BIN)/gpc compare $(foreach n,$(VBASELINES),$(VBRESULTS)/$(n)) $(foreach n,$(VBASELINE_GPC),$(VRESULTS)/$(n)) \
+	  $(VSHARED)/$(VCEILING) --baseline $(VSHARED)/bc --ceiling $(VSHARED)/$(VCEILING) --seeds $(VBASELINE_SEEDS) \
+	  $(PAPER_VISION.$(TASK)) --out $@ \
+	  --title "Vision $(TITLE), PROFILE=$(PROFILE), seeds $(VBASELINE_SEEDS): the baselines against GPC on the image policy's proposals"
+
+reproduce-baselines-vision: $(VBTABLE)
+	@cat $(VBTABLE)
+
 reproduce-pusht-vision: reproduce-vision
 
 # restore-vision: the trained vision checkpoints kept in git (artifacts/$(TASK)-$(PROFILE)/, artifacts/README.md) put where
@@ -487,8 +521,9 @@ reproduce-pusht-vision: reproduce-vision
 # (results/NAME/: finished, or the groups a stopped one saved) come back after them, so make finds the finished ones up
 # to date and resumes the rest. Nothing already in runs/ or results/ is replaced.
 ARTIFACTS := artifacts/$(TASK)-$(PROFILE)
-ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step onpolicy onpolicy-1step,$(notdir $(VWM_RUN))-$(s))
-KEPT_RESULTS := $(sort $(VSHARED) $(VRESULTS))
+ARTIFACT_STAGES := vpolicy reward $(foreach s,phase1 phase2 1step onpolicy onpolicy-1step,$(notdir $(VWM_RUN))-$(s)) \
+  $(foreach m,vgps latent ladi,$(notdir $(call vbaseline_run,$(m))))
+KEPT_RESULTS := $(sort $(VSHARED) $(VRESULTS) $(VBRESULTS))
 # A kept on-policy teacher stands for its recording too (the 9 MB store of small chunk files is not kept): that stamp
 # goes after those of the stages it was recorded with and before the teacher's.
 RECORDED_STAGE := $(notdir $(VWM_RUN))-onpolicy

@@ -207,15 +207,17 @@ def compare(
     out: Path = typer.Option(Path("results/compare.md"), "--out", "-o", help="Markdown table to write (and .json beside it)."),
     title: str = typer.Option("Planners against BC (paired over seeds)", "--title"),
     paper: str | None = typer.Option(None, "--paper", help="Paper figures to show beside ours: a task name (pusht-state)."),
+    seeds: str | None = typer.Option(None, "--seeds", help="START:STOP: pair on these seeds alone (every run must hold them)."),
 ) -> None:
     """Paired comparison of planners against BC: mean difference with a 95% CI, gap to the ceiling closed."""
+    from gpc.cli.reports import parse_seeds
     from gpc.datasets.locks import exclusive
     from gpc.harness import interrupts
     from gpc.harness.comparison import adopt_older, check_compare_out, compare_runs, render_plot, write_comparison
     from gpc.harness.files import write_bytes_atomic
 
     check_compare_out(out)
-    table = compare_runs(baseline, runs, ceiling)  # every input read and checked before anything is written
+    table = compare_runs(baseline, runs, ceiling, parse_seeds(seeds) if seeds else None)  # every input read and checked before anything is written
     plot = out.with_suffix(".png")
     png = render_plot(table, plot)
     interrupts.check()

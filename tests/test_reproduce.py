@@ -71,6 +71,27 @@ def run_baselines_smoke(args: list[str], tmp_path: Path, task: str) -> None:
                                       [results / n for n in ("bc", "vgps-K4", "dreamer-K4", "ladi-K4", "rank-K4", "gt-sim-K4")])
 
 
+def run_vision_baselines_smoke(vargs: list[str], tmp_path: Path, task: str) -> None:
+    """`make reproduce-baselines-vision` after a vision smoke pipeline (``vargs``: its make command): each baseline trains
+    on the stores reading what the image policy reads (its frozen encoder for LaDi) and ranks the image policy's
+    proposals; the table pairs them with the vision table's BC, GPC row and ceiling, read from their own folders."""
+    command = ["reproduce-baselines-vision" if a.startswith("reproduce") else a for a in vargs]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    shared, runs = tmp_path / "results-vision", tmp_path / "runs"
+    table = json.loads((tmp_path / "results-vision-baselines" / f"{task}_baselines_vision.json").read_text())
+    assert [r["label"] for r in table["rows"]] == ["bc", "vgps K=4", "dreamer K=4", "ladi K=4", "rank K=3", "gt-sim K=3"]
+    for run in ("vgps", "latent", "ladi"):
+        record = json.loads((runs / f"{run}-visual" / "run.json").read_text())
+        assert record["config"]["encoder"]["obs_type"] == "image" and record["config"]["task"] == task
+    ladi = json.loads((runs / "ladi-visual" / "run.json").read_text())["config"]
+    assert ladi["policy"] == str(runs / "vpolicy" / "checkpoints" / "last.ckpt")  # the image policy's frozen encoder
+    vb = tmp_path / "results-vision-baselines"
+    assert_table_is_what_was_measured(table, (vb / f"{task}_baselines_vision.md").read_text(), [
+        shared / "bc", vb / "vvgps-K4", vb / "vdreamer-K4", vb / "vladi-K4", tmp_path / "results-vision-onpolicy" / "vrank-K3",
+        shared / "vgt-sim-K3"])
+
+
 def run_vision_smoke(args: list[str], tmp_path: Path, task: str) -> tuple[Path, Path, Path]:
     """Run a task's vision smoke pipeline (``args``: the make command, RUN_DIR and RESULTS under ``tmp_path``) and check
     its table and its chain of models; returns (the planners' results, the shared BC and ceiling results, the runs)."""
@@ -136,6 +157,7 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
         p: t for p, t in stamps.items() if "rank-K4" not in str(p)}
     vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
     vres, shared, runs = run_vision_smoke(vargs, tmp_path, "pusht")
+    run_vision_baselines_smoke(vargs, tmp_path, "pusht")
     plain = subprocess.run(vargs + ["VWM_PLAN=student", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert plain.returncode == 0 and "--world-model " + str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt") in plain.stdout
     assert str(shared / "vopt-M2") in plain.stdout and "--planner gt-sim" not in plain.stdout  # the ceiling is shared

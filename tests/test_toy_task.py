@@ -10,6 +10,7 @@ import pytest
 import torch
 from toy_task import GOAL, LAYOUT, REACH
 
+from gpc.datasets.errors import DataError
 from gpc.harness.collection import CollectJob, collect
 from gpc.harness.comparison import compare_runs
 from gpc.harness.evaluation import EvalConfig, evaluate, write_results
@@ -105,6 +106,12 @@ def test_every_planner_runs_closed_loop_on_the_toy_task(trained, planner, tmp_pa
     write_results(result, tmp_path / "planner", recipe.label)
     table = compare_runs(tmp_path / "bc", [tmp_path / "planner"])
     assert [row["label"] for row in table["rows"]] == ["bc", recipe.label]
+    # a protocol of fewer seeds read from the same runs: the rows are those seeds' figures alone
+    part = compare_runs(tmp_path / "bc", [tmp_path / "planner"], seeds=list(SEEDS[:2]))
+    assert part["rows"][1]["seeds"] == 2 and part["seeds"] == [SEEDS[0], SEEDS[1]]
+    assert part["rows"][1]["score"] == pytest.approx(sum(r["score"] for r in result["episodes"][:2]) / 2)
+    with pytest.raises(DataError, match="lacks seed"):
+        compare_runs(tmp_path / "bc", [tmp_path / "planner"], seeds=[SEEDS[-1] + 1])
     assert json.loads((tmp_path / "planner" / "summary.json").read_text())["config"]["task"] == "reach"
 
 

@@ -152,10 +152,18 @@ def _joined(parts: list[dict[str, Any]], path: str) -> dict[str, Any]:
     return {"path": path, "label": first["label"], "summary": summary, "rows": rows}
 
 
-def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) -> dict[str, Any]:
-    """One row per run: score, success, paired differences to BC, gap closed, seconds per decision."""
+def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None,
+                 seeds: list[int] | None = None) -> dict[str, Any]:
+    """One row per run: score, success, paired differences to BC, gap closed, seconds per decision.
+
+    ``seeds`` pairs on those seeds alone (every run must hold them): a protocol of fewer seeds (Table III's 50)
+    read from runs that hold more, without evaluating them again."""
     base = load_run(baseline)
-    seeds = sorted(base["rows"])
+    if seeds is not None:
+        lacking = sorted(set(seeds) - set(base["rows"]))
+        if lacking:
+            raise DataError(f"{base['path']}: the baseline lacks seed(s) {lacking[:5]} of --seeds")
+    seeds = sorted(set(seeds)) if seeds is not None else sorted(base["rows"])
     top = load_run(ceiling) if ceiling else None
     table = []
     for run in [base] + [load_run(r) for r in runs if Path(r) != Path(baseline)] + ([top] if top else []):
@@ -190,7 +198,7 @@ def compare_runs(baseline: Path, runs: list[Path], ceiling: Path | None = None) 
         table.append(row)
     _tell_apart(table)
     return {"baseline": str(baseline), "ceiling": str(ceiling) if ceiling else None, "task": settings(base["summary"])["task"],
-            "rows": table}
+            "seeds": [seeds[0], seeds[-1]], "rows": table}
 
 
 def _tell_apart(rows: list[dict[str, Any]]) -> None:
@@ -254,7 +262,8 @@ def write_comparison(table: dict[str, Any], out: Path, title: str, paper: str | 
     head = "| controller | " + ("paper | " if figures else "") + (
         "score | success | score - BC [95% CI] | success - BC [95% CI] | gap closed (score / success) "
         "| s/decision | time share |")
-    lines = [f"# {title}", "", f"Paired over {table['rows'][0]['seeds']} seeds; baseline {table['baseline']}"
+    span = f" ({table['seeds'][0]}-{table['seeds'][1]})" if "seeds" in table else ""
+    lines = [f"# {title}", "", f"Paired over {table['rows'][0]['seeds']} seeds{span}; baseline {table['baseline']}"
              + (f"; ceiling {table['ceiling']}" if table["ceiling"] else "") + ".", "", head,
              "|" + "---|" * (head.count("|") - 1)]
     for r in table["rows"]:
