@@ -210,3 +210,37 @@ def test_ladi_predicts_where_a_chunk_leads_in_the_frozen_encoders_latents_and_ra
     plan = recipe().plan({"state": np.array([[start, start]])}, [torch.Generator().manual_seed(1)])
     again = recipe().plan({"state": np.array([[start, start]])}, [torch.Generator().manual_seed(1)])
     assert np.array_equal(plan.scores, again.scores)  # the futures' noise is fixed: a decision repeats
+
+
+def test_ladi_encodes_each_stored_frame_once_as_its_frozen_image_encoder_reads_it_at_a_decision(tmp_path):
+    """With an image policy's encoder, windows read features computed once per stored frame (not 10 frames per
+    window per step): the loss on them equals the loss on the same window's frames read through the encoder in
+    eval mode (as at a decision), so the features sit at the right steps and scale."""
+    from test_policy import make_store
+    from test_policy import tiny as tiny_policy
+
+    from gpc.datasets.datamodule import EpisodeDataModule
+    from gpc.datasets.windows import WindowDataset
+    from gpc.models.ladi.module import FEATURE_KEY, IMAGE_KEY
+    from gpc.tasks.pusht import LAYOUT as PUSHT
+
+    store = make_store(tmp_path / "demo.zarr", episodes=3, length=30)
+    run = RunConfig(run_dir=tmp_path / "vpolicy", max_steps=2, batch_size=8, progress=False, accelerator="cpu")
+    policy_ckpt = train(PolicyModule, tiny_policy("image"), [store], run).last
+    policy = PolicyModule.load_from_checkpoint(policy_ckpt)
+    config = ladi_profile("tiny", PUSHT, str(policy_ckpt), policy.config.encoder, (2, 8)).config
+    windows = LadiModule.data_config(config, (str(store),), dataclasses.replace(run, run_dir=tmp_path / "ladi"), (0, 0.0))
+    data = EpisodeDataModule(windows)
+    config = LadiModule.fit_to_data(config, data.arrays, str(store), resumed=False)
+    module = LadiModule.from_data(config, data, {})
+    frames = WindowDataset(data.arrays, data.train_episodes, windows.spec, dict(data.steps))
+    module.prepare(data)
+    assert IMAGE_KEY not in data.steps and data.arrays.data[FEATURE_KEY].shape[0] == 90
+    features = WindowDataset(data.arrays, data.train_episodes, windows.spec, data.steps)
+    module.eval()
+    for i in (0, len(frames) // 2, len(frames) - 1):
+        losses = []
+        for window in (frames[i], features[i]):
+            torch.manual_seed(i)
+            losses.append(module.loss({k: v[None] for k, v in window.items()})[0])
+        assert float(losses[0]) == pytest.approx(float(losses[1]), rel=1e-5, abs=1e-6)

@@ -18,6 +18,7 @@ from typing import Any, cast
 import numpy as np
 import torch
 import torch.nn.functional as F
+from rich.progress import track
 from torch import nn
 
 from gpc.datasets.datamodule import DataConfig, EpisodeDataModule
@@ -36,6 +37,7 @@ from gpc.models.training.observing import ObservingModule
 
 KIND = "ladi-world-model"
 ACTION_KEY, STATE_KEY, GOAL_KEY, IMAGE_KEY = "action", "state", "goal", "img"
+FEATURE_KEY = "ladi_features"  # the frozen encoder's features of every stored step, when it has weights to run
 SAMPLING_SEED = 0  # the noise every decision's futures start from (scores repeat for the same inputs)
 
 
@@ -59,7 +61,10 @@ class LadiNetwork(nn.Module):
     def latents(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
         """``{key: (B, T, ...)}`` normalised observations -> ``(B, T, F)`` latents in [-1, 1] (the encoder frozen)."""
         with torch.no_grad():
-            features = self.encoder(dict(obs))
+            return self.scaled(self.encoder(dict(obs)))
+
+    def scaled(self, features: torch.Tensor) -> torch.Tensor:
+        """The encoder's features -> latents in [-1, 1] over the training data's range."""
         return 2.0 * (features - self.low) / (self.high - self.low).clamp_min(1e-6) - 1.0
 
 
@@ -126,10 +131,30 @@ class LadiModule(ObservingModule):
         if missing:
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the policy)")
 
+    @torch.no_grad()
+    def prepare(self, data: EpisodeDataModule, progress: bool = False) -> None:
+        """An encoder with weights (an image policy's ResNet) is frozen, so each stored frame's features are computed
+        once, in eval mode as at a decision, and windows read those instead of frames: otherwise every window
+        encodes its history and future again (2,560 frames per batch of 256)."""
+        encoder = self.model.encoder
+        if not any(True for _ in encoder.parameters()):
+            return
+        arrays, mode = data.arrays.data, encoder.training
+        encoder.eval()
+        n, chunks = len(arrays[STATE_KEY]), []
+        starts = range(0, n, 512)
+        for start in track(starts, "frozen encoder: every stored frame", total=len(starts), disable=not progress):
+            part = {k: torch.as_tensor(arrays[k][start : start + 512], dtype=torch.float32)[:, None] for k in self.obs_keys}
+            chunks.append(encoder(self._obs(part))[:, 0].cpu().numpy())
+        encoder.train(mode)
+        arrays[FEATURE_KEY] = np.concatenate(chunks)
+        only_encoded = set(self.obs_keys) - {STATE_KEY, GOAL_KEY}  # the reward still reads the states (and goals)
+        data.steps = {k: v for k, v in data.steps.items() if k not in only_encoded} | {FEATURE_KEY: data.steps[self.obs_keys[0]]}
+
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg, net = self.config, self.model
         h, n = cfg.n_obs_steps, cfg.future
-        latents = net.latents(self._obs(batch))  # (B, h + n, F)
+        latents = net.scaled(batch[FEATURE_KEY].to(self.device)) if FEATURE_KEY in batch else net.latents(self._obs(batch))
         actions = self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY][:, h - 1 : h - 1 + n].float())
         cond = torch.cat([latents[:, :h].flatten(1), actions.flatten(1)], dim=-1)
         target = latents[:, h:]

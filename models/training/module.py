@@ -96,6 +96,10 @@ class TrainableModule(L.LightningModule):
         """A fresh module whose normaliser is fitted on the training episodes."""
         return cls(config, normalizer=data.normalizer, data=record)  # type: ignore[call-arg]
 
+    def prepare(self, data: EpisodeDataModule, progress: bool = False) -> None:
+        """Called once before fitting, fresh or resumed: where a module derives what its windows read from the loaded
+        stores (LaDi's frozen encoder reads each frame once here, not once per window)."""
+
     @classmethod
     def check_resume(cls, stored: Any, given: Any, path: str) -> None:
         """Refuse to resume a run whose stored config is of another kind than the one asked for."""

@@ -286,6 +286,7 @@ def _train(cls: type[TrainableModule], config: Any, datasets: Sequence[str | os.
             module.load_state_dict(init_state)
         except RuntimeError as exc:
             raise DataError(f"{init}: weights do not fit the {cls.WHAT} ({str(exc).splitlines()[0][:200]})") from None
+    module.prepare(data, progress=run.progress)
     return fit_module(module, data, run, validate=len(data.val_episodes) > 0, extra=callbacks)
 
 
