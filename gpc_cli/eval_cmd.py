@@ -200,6 +200,57 @@ def eval_ascent(
     typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
 
 
+@eval_app.command("ranking")
+@with_planning_options
+def eval_ranking(
+    checkpoint: Checkpoint,
+    planner: PlannerKind = "rank",
+    planning: dict | None = None,
+    scorer: list[str] = typer.Option(..., "--scorer", help="PLANNER=CHECKPOINT, repeated: each ranking planner to probe "
+                                     "(rank=WM.ckpt, vgps=VALUE.ckpt, dreamer=LATENT.ckpt, ladi=LADI.ckpt); the other options apply to all."),
+    seeds: str = typer.Option("200000:200010", "--seeds", help="Seed range START:STOP or a list (validation seeds: not the test seeds)."),
+    out: Path = typer.Option(Path("results/ranking.md"), "--out", "-o", help="Markdown report to write (and .json beside it)."),
+    batch: int = typer.Option(10, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep."),
+    goal: Goal = "fixed",
+    max_steps: int = typer.Option(300, "--max-steps", min=1, max=MAX_COUNT, help="Steps per episode (every decision is probed)."),
+) -> None:
+    """How well each scorer orders the policy's K proposals, against the true simulator on the same chunks (BC's states)."""
+    import json
+
+    from gpc.cli.reports import parse_seeds
+    from gpc.harness.files import check_file_out, write_atomic
+    from gpc.harness.rank_probe import markdown, probe_ranking
+    from gpc.tasks import get_task
+
+    assert planning is not None  # with_planning_options passes them
+    check_file_out(out, ".md", beside=(".json",))
+    pairs = [s.partition("=") for s in scorer]
+    if any(not name or not sep or not ckpt for name, sep, ckpt in pairs):
+        raise typer.BadParameter("use PLANNER=CHECKPOINT (rank=runs/wm/checkpoints/last.ckpt)", param_hint="--scorer")
+    names = [name for name, _, _ in pairs]
+    planners, recipes, task_name = {}, [], None
+    for name, _, ckpt in pairs:
+        recipe = recipe_from_options(checkpoint, name, {**planning, "world_model": ckpt}, goal)
+        kind = recipe.planner.planner if recipe.planner is not None else None
+        if kind is None or kind.uses_gradients or kind.iterates or not kind.uses_policy:
+            raise typer.BadParameter(f"{name}: probe planners that rank the policy's proposals once (rank, vgps, dreamer, ladi)",
+                                     param_hint="--scorer")
+        planners[name if names.count(name) == 1 else f"{name} {ckpt}"] = recipe()
+        recipes.append(recipe.summary())
+        task_name = recipe.task
+    assert task_name is not None  # make_recipe names the task
+    task = get_task(task_name)
+    k = planning["k"] or 100
+    summary = {"scorers_run": recipes, "seeds": seeds, "k": k, "max_steps": max_steps,
+               **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal)}
+    report = markdown(summary, f"Ranking probed: {', '.join(planners)}, K={k}, seeds {seeds}, {max_steps} steps")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(out.with_suffix(".json"), json.dumps(summary, indent=1))
+    write_atomic(out, report)
+    typer.echo(report)
+    typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
+
+
 def compare(
     runs: list[Path] = typer.Argument(..., help="Result directories of `gpc eval` (same seeds); A+B joins one controller's runs on two seed ranges."),
     baseline: Path = typer.Option(..., "--baseline", help="The BC result directory the others are paired with."),

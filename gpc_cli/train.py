@@ -3,6 +3,7 @@ holds the others)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -68,6 +69,8 @@ def value(
     profile: str = typer.Option("cpu", "--profile", help="cpu (two 256-wide layers), paper (512-wide), tiny (tests)."),
     lr: LrOption = None,
     goal: GoalOption = "fixed",
+    expectile: float | None = typer.Option(None, "--expectile", help="IQL's tau, in (0, 1): the expectile of Q that V fits (profile: 0.7; higher is closer to a max over the data's chunks)."),
+    discount: float | None = typer.Option(None, "--discount", help="Discount per environment step, in [0, 1) (profile: 0.99)."),
     options: dict | None = None,
 ) -> None:
     """Train V-GPS's Q-function by IQL on Zarr stores (expert and exploration) with the task's reward; rank with
@@ -78,6 +81,13 @@ def value(
 
     obs_type, goal, timeline = _for_policy(policy, task, obs, goal)
     chosen = value_profile(profile, obs_type, get_task(task).layout, timeline, goal=goal, lr=lr)
+    config = chosen.config
+    try:
+        config = dataclasses.replace(config, expectile=config.expectile if expectile is None else expectile,
+                                     discount=config.discount if discount is None else discount)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--" + str(exc).split()[0]) from None
+    chosen = dataclasses.replace(chosen, config=config)
     echo_result(train_component(ValueModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 

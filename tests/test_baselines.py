@@ -244,3 +244,27 @@ def test_ladi_encodes_each_stored_frame_once_as_its_frozen_image_encoder_reads_i
             torch.manual_seed(i)
             losses.append(module.loss({k: v[None] for k, v in window.items()})[0])
         assert float(losses[0]) == pytest.approx(float(losses[1]), rel=1e-5, abs=1e-6)
+
+
+def test_the_ranking_probe_scores_the_truth_perfectly_and_its_reverse_as_the_worst_pick(trained):
+    """`gpc eval ranking`'s probe on BC's states: the simulator ranking its own replays agrees with the truth exactly
+    (correlation 1, always the best pick, no regret); the same scores negated correlate -1 and always pick the worst,
+    giving up more than a pick at random."""
+    from gpc.harness.rank_probe import probe_ranking
+
+    class Negated:
+        def __init__(self, scorer):
+            self.scorer, self.obs_keys, self.n_obs_steps = scorer, scorer.obs_keys, scorer.n_obs_steps
+
+        def objective(self, obs, timer, episodes=None):
+            score = self.scorer.objective(obs, timer, episodes)
+            return lambda chunks: tuple(-x if i == 0 else x for i, x in enumerate(score(chunks)))
+
+    truth, reverse = make_recipe(trained["policy"], GT_SIM, k=12)(), make_recipe(trained["policy"], GT_SIM, k=12)()
+    reverse.scorer = Negated(reverse.scorer)
+    summary = probe_ranking({"truth": truth, "reverse": reverse}, REACH, SEEDS[:2], k=12, max_steps=16, batch=2)
+    assert summary["decisions"] >= 2 and summary["random_regret"] > 0
+    right, wrong = summary["scorers"]["truth"], summary["scorers"]["reverse"]
+    assert right["spearman_mean"] == pytest.approx(1.0) and right["picks_best"] == 1.0 and right["regret"] == 0.0
+    assert wrong["spearman_mean"] == pytest.approx(-1.0) and wrong["picks_best"] == 0.0
+    assert wrong["regret"] > summary["random_regret"] and wrong["margin_kept"] < 0
