@@ -27,8 +27,9 @@ from gpc.tasks.base import Task
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
     """Rank correlation of two score vectors (NaN where either is constant)."""
-    ra, rb = np.argsort(np.argsort(a)).astype(float), np.argsort(np.argsort(b)).astype(float)
-    return float(np.corrcoef(ra, rb)[0, 1]) if ra.std() > 0 and rb.std() > 0 and a.std() > 0 and b.std() > 0 else float("nan")
+    if a.std() == 0 or b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
 class RankProbe:
