@@ -190,21 +190,24 @@ def ladi(trained) -> Path:
 
 def test_ladi_predicts_where_a_chunk_leads_in_the_frozen_encoders_latents_and_ranks_by_it(trained, ladi):
     """The latents it samples decode (the state policy's encoder is its normaliser) to the true positions, far
-    closer than "nothing moves" for most chunks (heading for the far corner, which the data hardly visits, it errs
-    most), and the chunk that heads for the goal outscores the one that leaves it."""
+    closer than "nothing moves", for chunks like the data's (a random target each step, as the exploration
+    collector draws them; and straight at the goal, as the expert goes), and its scores order the chunks as the
+    true reward where they lead."""
     model = LadiModule.load_from_checkpoint(ladi)
     start = np.array([30.0, 70.0])
-    targets = [GOAL, (0.0, 100.0), (30.0, 30.0), (70.0, 70.0)]
-    chunks = torch.tensor([[[list(t)] * 8 for t in targets]], dtype=torch.float32)
-    latents = model.predict({"state": np.array([[start, start]])}, chunks)[0, :, -1]  # (4, F): after the 8th action
+    chunks = np.random.default_rng(0).uniform(0.0, 100.0, size=(24, 8, 2))
+    chunks[0] = GOAL
+    latents = model.predict({"state": np.array([[start, start]])}, torch.as_tensor(chunks[None], dtype=torch.float32))[0, :, -1]
     net = model.ema.model if model.ema is not None else model.model
     normalised = (latents + 1.0) / 2.0 * (net.high - net.low) + net.low
     predicted = model.normalizer.unnormalize("state", normalised).numpy()
-    true = np.stack([_reached(start, c) for c in chunks[0].numpy()])
+    true = np.stack([_reached(start, c) for c in chunks])
     error, still = np.linalg.norm(predicted - true, axis=1), np.linalg.norm(true - start, axis=1)
-    assert np.median(error) < 0.4 * still.mean() and error[0] < 0.3 * still[0], (predicted, true)
-    scores = model.rewards(latents)
-    assert float(scores[0]) > float(scores[1]), scores
+    assert np.median(error) < 0.5 * np.median(still) and error[0] < 0.3 * still[0], (predicted, true)
+    scores = model.rewards(latents).numpy()
+    ranks = lambda x: np.argsort(np.argsort(x))  # noqa: E731
+    truth = -np.linalg.norm(true - np.asarray(GOAL), axis=1)
+    assert np.corrcoef(ranks(scores), ranks(truth))[0, 1] > 0.7, (scores, truth)
     recipe = make_recipe(trained["policy"], "ladi", world_model=str(ladi), k=3)
     assert recipe.summary()["controller"] == "ladi K=3"
     plan = recipe().plan({"state": np.array([[start, start]])}, [torch.Generator().manual_seed(1)])

@@ -24,6 +24,7 @@ from gpc.models.training.ema import EMAConfig
 from gpc.models.values.config import PROFILES
 
 AGGREGATES = ("final", "sum")
+TARGETS = ("change", "latent")
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,7 @@ class LadiConfig(PlainConfig, ReadsObservations):
     reward_goal: bool = False  # the reward reads each episode's goal (the stores' ``goal``)
     reward_scale: float = 1.0  # rewards are divided by this (filled in from the data)
     aggregate: str = "final"  # a chunk's score: the reward of its last predicted latent, or the sum over them
+    target: str = "change"  # what is denoised: each future latent's change since now (scaled by its reach), or the latent
     optim: OptimConfig = field(default_factory=lambda: OptimConfig(lr=1e-3))
     ema: EMAConfig = field(default_factory=EMAConfig)
 
@@ -56,19 +58,22 @@ class LadiConfig(PlainConfig, ReadsObservations):
         self.unet.check_horizon(self.future)
         if self.aggregate not in AGGREGATES:
             raise ValueError(f"aggregate {self.aggregate!r}: use one of {', '.join(AGGREGATES)}")
+        if self.target not in TARGETS:
+            raise ValueError(f"target {self.target!r}: use one of {', '.join(TARGETS)}")
         if not self.reward_scale > 0:
             raise ValueError(f"reward_scale {self.reward_scale}: must be > 0")
 
 
 def ladi_profile(name: str, layout: TaskLayout, policy: str, encoder: EncoderConfig, timeline: tuple[int, int],
                  lr: float | None = None) -> Profile[LadiConfig]:
-    """``cpu``: the policy's CPU U-Net widths, 8 future latents, 1,500 steps (about 10 minutes on 2 cores, more than GPC's
-    state world model takes); ``paper``: Diffusion Policy's widths;
+    """``cpu``: the policy's CPU U-Net widths, 8 future latents, 8,000 steps (GPC's state world model's two phases; about
+    47 minutes on 2 cores: at 1,500 its held-out denoising loss was still falling and its 8-step predictions were worse
+    than "nothing moves"); ``paper``: Diffusion Policy's widths;
     ``tiny``: tests. ``encoder`` and ``timeline`` are the policy's (its frozen encoder, history and executed chunk)."""
     base = LadiConfig(task=layout.name, policy=policy, action_dim=layout.action.dim, encoder=encoder,
                       n_obs_steps=timeline[0], future=timeline[1], reward_goal=encoder.goal)
     if name == "cpu":
-        config, batch, steps = base, 256, 1500
+        config, batch, steps = base, 256, 8000
     elif name == "paper":
         config, batch, steps = dataclasses.replace(base, unet=UNetConfig(), reward_width=512), 256, 100000
     elif name == "tiny":

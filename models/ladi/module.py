@@ -3,10 +3,13 @@
 Training windows hold the history, the chunk and the observations after each of its first
 ``future`` actions. The policy's frozen encoder (and its normaliser) turn observations into
 latents, scaled to [-1, 1] by their range over the training data; a 1-D U-Net learns DDPM's noise
-prediction on the future latents, conditioned on the history's latents and the actions, and a
-reward head learns the task's reward (symlog of the scaled reward) from a latent. A decision
-samples each of the K chunks' futures with DDIM from a fixed noise draw (the same latents for the
-same inputs) and scores the last predicted latent's reward (``config.aggregate``).
+prediction on the future latents (by default their change since now, scaled by the largest change
+``future`` steps bring in the data: the latents move little over a chunk, so denoising them whole
+spends the model's precision on what nothing changes), conditioned on the history's latents and the
+actions, and a reward head learns the task's reward (symlog of the scaled reward) from a latent. A
+decision samples the K chunks' futures with DDIM from one fixed noise draw shared by the K (the same
+latents for the same inputs, and proposals differ by their actions, not their noise) and scores the
+last predicted latent's reward (``config.aggregate``).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ class LadiNetwork(nn.Module):
 
     low: torch.Tensor
     high: torch.Tensor
+    reach: torch.Tensor
 
     def __init__(self, config: LadiConfig) -> None:
         super().__init__()
@@ -57,6 +61,8 @@ class LadiNetwork(nn.Module):
         self.schedule = NoiseSchedule(config.noise)
         self.register_buffer("low", -torch.ones(width))
         self.register_buffer("high", torch.ones(width))
+        self.register_buffer("reach", torch.ones(width))  # per latent, the largest change over `future` steps (target "change")
+        self.change = config.target == "change"
 
     def latents(self, obs: Mapping[str, torch.Tensor]) -> torch.Tensor:
         """``{key: (B, T, ...)}`` normalised observations -> ``(B, T, F)`` latents in [-1, 1] (the encoder frozen)."""
@@ -66,6 +72,14 @@ class LadiNetwork(nn.Module):
     def scaled(self, features: torch.Tensor) -> torch.Tensor:
         """The encoder's features -> latents in [-1, 1] over the training data's range."""
         return 2.0 * (features - self.low) / (self.high - self.low).clamp_min(1e-6) - 1.0
+
+    def target(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
+        """``(B, H, F)``, ``(B, n, F)`` latents -> what the U-Net denoises: the future, or its change since now."""
+        return (future - history[:, -1:]) / self.reach.clamp_min(1e-6) if self.change else future
+
+    def future(self, history: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:
+        """The inverse of ``target``: a denoised sample -> the future latents."""
+        return history[:, -1:] + sample * self.reach.clamp_min(1e-6) if self.change else sample
 
 
 class LadiModule(ObservingModule):
@@ -114,17 +128,36 @@ class LadiModule(ObservingModule):
         module = cls(config, normalizer=policy.normalizer, data=record)
         source = cast(Any, policy.ema.model if policy.ema is not None else policy.model).encoder
         module.model.encoder.load_state_dict(source.state_dict())
-        steps = np.random.default_rng(0).choice(len(data.arrays.data[STATE_KEY]), size=min(4096, len(data.arrays.data[STATE_KEY])),
-                                                replace=False)
-        obs = {k: module.normalizer.normalize(k, torch.as_tensor(data.arrays.data[k][np.sort(steps)], dtype=torch.float32))[:, None]
-               for k in config.obs_keys}
+        module.model.eval()  # the bounds come from the features a decision reads
         with torch.no_grad():
-            features = module.model.encoder(obs)[:, 0]
-        module.model.low.copy_(features.min(dim=0).values)
-        module.model.high.copy_(features.max(dim=0).values)
+            n = len(data.arrays.data[STATE_KEY])
+            features = module._features(data.arrays.data, np.sort(np.random.default_rng(0).choice(n, size=min(4096, n), replace=False)))
+            module.model.low.copy_(features.min(dim=0).values)
+            module.model.high.copy_(features.max(dim=0).values)
+            module.model.reach.copy_(module._reach(data.arrays))
+        module.model.train()
         if module.ema is not None:
             module.ema.update(module.model)  # the averaged copy starts from these weights and bounds
         return module
+
+    def _features(self, arrays: Mapping[str, np.ndarray], steps: np.ndarray, progress: str = "") -> torch.Tensor:
+        """The frozen encoder's ``(len(steps), F)`` features of stored steps, 512 at a time."""
+        parts, starts = [], range(0, len(steps), 512)
+        for start in track(starts, progress, total=len(starts), disable=not progress):
+            part = {k: torch.as_tensor(arrays[k][steps[start : start + 512]], dtype=torch.float32)[:, None] for k in self.obs_keys}
+            parts.append(self.model.encoder(self._obs(part))[:, 0])
+        return torch.cat(parts)
+
+    def _reach(self, arrays: EpisodeArrays) -> torch.Tensor:
+        """Per latent, the largest change ``future`` steps bring within an episode, over up to 4,096 sampled steps."""
+        ends, future = arrays.episode_ends, self.config.future
+        steps = np.arange(len(arrays.data[STATE_KEY]))
+        steps = steps[steps + future < ends[np.searchsorted(ends, steps, side="right")]]
+        if not steps.size:
+            return torch.ones_like(self.model.reach)
+        steps = np.sort(np.random.default_rng(1).choice(steps, size=min(4096, steps.size), replace=False))
+        now, later = (self.model.scaled(self._features(arrays.data, s)) for s in (steps, steps + future))
+        return (later - now).abs().max(dim=0).values
 
     def check_ready(self) -> None:
         missing = [k for k in self.obs_keys + (ACTION_KEY,) if k not in self.normalizer.keys()]
@@ -141,13 +174,9 @@ class LadiModule(ObservingModule):
             return
         arrays, mode = data.arrays.data, encoder.training
         encoder.eval()
-        n, chunks = len(arrays[STATE_KEY]), []
-        starts = range(0, n, 512)
-        for start in track(starts, "frozen encoder: every stored frame", total=len(starts), disable=not progress):
-            part = {k: torch.as_tensor(arrays[k][start : start + 512], dtype=torch.float32)[:, None] for k in self.obs_keys}
-            chunks.append(encoder(self._obs(part))[:, 0].cpu().numpy())
+        steps = np.arange(len(arrays[STATE_KEY]))
+        arrays[FEATURE_KEY] = self._features(arrays, steps, "frozen encoder: every stored frame" if progress else "").cpu().numpy()
         encoder.train(mode)
-        arrays[FEATURE_KEY] = np.concatenate(chunks)
         only_encoded = set(self.obs_keys) - {STATE_KEY, GOAL_KEY}  # the reward still reads the states (and goals)
         data.steps = {k: v for k, v in data.steps.items() if k not in only_encoded} | {FEATURE_KEY: data.steps[self.obs_keys[0]]}
 
@@ -157,7 +186,7 @@ class LadiModule(ObservingModule):
         latents = net.scaled(batch[FEATURE_KEY].to(self.device)) if FEATURE_KEY in batch else net.latents(self._obs(batch))
         actions = self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY][:, h - 1 : h - 1 + n].float())
         cond = torch.cat([latents[:, :h].flatten(1), actions.flatten(1)], dim=-1)
-        target = latents[:, h:]
+        target = net.target(latents[:, :h], latents[:, h:])
         noise = torch.randn_like(target)
         t = torch.randint(0, net.schedule.train_steps, (target.shape[0],), device=target.device)
         denoise = F.mse_loss(net.unet(net.schedule.add_noise(target, noise, t), t, cond), net.schedule.target(target, noise))
@@ -181,12 +210,12 @@ class LadiModule(ObservingModule):
         actions = self.normalizer.normalize(ACTION_KEY, chunks[:, :, : cfg.future].to(self.device, torch.float32))
         cond = torch.cat([history.flatten(1).repeat_interleave(k, 0), actions.flatten(0, 1).flatten(1)], dim=-1)
         generator = torch.Generator().manual_seed(SAMPLING_SEED)
-        shape = (b * k, cfg.future, history.shape[-1])
-        draw = lambda: torch.randn(shape, generator=generator).to(self.device)  # noqa: E731
+        shape = (b, 1, cfg.future, history.shape[-1])
+        draw = lambda: torch.randn(shape, generator=generator).expand(b, k, *shape[2:]).flatten(0, 1).to(self.device)  # noqa: E731
         steps = torch.empty(b * k, dtype=torch.long, device=self.device)
         sampler = DiffusionSampler(net.schedule, cfg.sampler)
-        latents = sampler.sample(lambda x, t: net.unet(x, steps.fill_(t), cond), draw(), draw)
-        return latents.unflatten(0, (b, k))
+        sample = sampler.sample(lambda x, t: net.unet(x, steps.fill_(t), cond), draw(), draw)
+        return net.future(history.repeat_interleave(k, 0), sample).unflatten(0, (b, k))
 
     def rewards(self, latents: torch.Tensor) -> torch.Tensor:
         """``(..., F)`` latents -> ``(...)`` rewards in the task's units."""

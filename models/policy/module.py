@@ -20,11 +20,10 @@ from gpc.datasets.datamodule import DataConfig
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.ddpm import DiffusionSampler, SamplerConfig
-from gpc.models.networks.encoders import normalized_obs
 from gpc.models.policy.config import PolicyConfig
 from gpc.models.policy.denoiser import ActionDenoiser
 from gpc.models.training.config import RunConfig
-from gpc.models.training.module import TrainableModule
+from gpc.models.training.observing import ObservationModule
 
 KIND = "policy"
 ACTION_KEY = "action"
@@ -41,10 +40,11 @@ def _eval_mode(module: nn.Module) -> Iterator[None]:
         module.train(was)
 
 
-class PolicyModule(TrainableModule):
+class PolicyModule(ObservationModule):
     """Diffusion Policy for one task and observation type (``config.encoder.obs_type``)."""
 
     KIND, WHAT = "policy", "policy"
+    CONFIG = PolicyConfig
 
     def __init__(self, config: PolicyConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
                  data: Mapping[str, Any] | None = None) -> None:
@@ -60,27 +60,12 @@ class PolicyModule(TrainableModule):
 
     # ------------------------------------------------------------------ properties
     @property
-    def obs_keys(self) -> tuple[str, ...]:
-        return self.config.obs_keys
-
-    @property
     def action_slice(self) -> slice:
         """The actions of a chunk to execute: ``n_action_steps`` from index ``n_obs_steps - 1``."""
         start = self.config.n_obs_steps - 1
         return slice(start, start + self.config.n_action_steps)
 
     # ------------------------------------------------------------------ the training contract
-    @property
-    def network(self) -> nn.Module:
-        return self.model
-
-    def record(self) -> dict[str, Any]:
-        return {"obs": self.config.obs_type}
-
-    @classmethod
-    def config_from_dict(cls, data: Any) -> PolicyConfig:
-        return PolicyConfig.from_dict(data)
-
     @classmethod
     def data_config(cls, config: PolicyConfig, datasets: tuple[str, ...], run: RunConfig,
                     split: tuple[int, float]) -> DataConfig:
@@ -95,11 +80,8 @@ class PolicyModule(TrainableModule):
         """The encoder learns each observation key's step shape from the stores (a resumed run must see the same)."""
         return config.fitted_to(arrays.data, source, fixed=resumed)
 
-    def _normalize_obs(self, obs: Mapping[str, Any]) -> dict[str, torch.Tensor]:
-        return normalized_obs(self.normalizer, self.obs_keys, obs, self.device, "policy")
-
     def _split_batch(self, batch: Mapping[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        return self._normalize_obs(batch), self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY].float())
+        return self._obs(batch), self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY].float())
 
     def check_ready(self) -> None:
         missing = [k for k in self.obs_keys + (ACTION_KEY,) if k not in self.normalizer.keys()]
@@ -152,7 +134,7 @@ class PolicyModule(TrainableModule):
         sampler_cfg = SamplerConfig(method or cfg.sampler.method, steps or cfg.sampler.steps, spacing or cfg.sampler.spacing)
         net = self._net(use_ema)
         sampler = DiffusionSampler(net.schedule, sampler_cfg)
-        history = self._normalize_obs(obs)
+        history = self._obs(obs)
         b = self._check_history(history)
         if generator is not None and not isinstance(generator, torch.Generator) and len(generator) != b:
             raise ValueError(f"{len(generator)} generators for {b} observation histories")
