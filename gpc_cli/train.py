@@ -103,6 +103,7 @@ def latent_world_model(
     profile: str = typer.Option("cpu", "--profile", help="cpu, paper (DreamerV3's medium sizes; Diffusion Policy's U-Net), tiny (tests)."),
     lr: LrOption = None,
     goal: GoalOption = "fixed",
+    history: int | None = typer.Option(None, "--history", min=1, help="rssm: observations each posterior reads, stacked (profile: 1, DreamerV3's; the policy's history, 2, lets a decision's first posterior see velocities)."),
     options: dict | None = None,
 ) -> None:
     """Train a latent world model on Zarr stores with the task's reward; rank with
@@ -116,12 +117,16 @@ def latent_world_model(
 
         obs_type, goal, _ = _for_policy(policy, task, obs, goal)
         chosen: Any = latent_profile(profile, obs_type, layout, goal=goal, lr=lr)
+        if history is not None:
+            chosen = dataclasses.replace(chosen, config=dataclasses.replace(chosen.config, history=history))
         cls: Any = LatentWorldModelModule
     elif kind == "ladi":
         from gpc.harness.policies import load_policy
         from gpc.models.ladi.config import ladi_profile
         from gpc.models.ladi.module import LadiModule
 
+        if history is not None:
+            raise typer.BadParameter("--kind ladi reads the policy's history", param_hint="--history")
         if policy is None:
             raise typer.BadParameter("the LaDi-WM-style model reads the policy's frozen encoder: give --policy", param_hint="--policy")
         loaded = load_policy(policy, task, None)

@@ -126,21 +126,28 @@ def test_a_users_planner_registers_by_name_and_runs_like_the_built_in_ones(train
     assert int(plan.chosen[0]) == 4 and recipe.summary()["controller"] == "last K=5"
 
 
-def test_the_rssm_imagines_the_rewards_its_posterior_reads_from_the_true_observations(trained, latent):
+@pytest.mark.parametrize(("fixture", "bar"), [("latent", 0.4), ("latent_history", 0.5)])
+def test_the_rssm_imagines_the_rewards_its_posterior_reads_from_the_true_observations(trained, fixture, bar, request):
     """Along stored expert episodes' actions, the reward imagined with prior latents from the first observation agrees
     with the reward head on the posterior latents of the observations really reached, and with the true reward: over
-    five episodes each errs well under half as much as predicting no change would."""
+    five episodes each errs well under half as much as predicting no change would. With a stacked history the
+    episode's start is padded with its first observation, as the evaluation's history starts; the toy point has no
+    velocity, so the earlier frame is an input it learns to ignore, and at the same steps it errs a little more
+    (measured 6.7 against 4.6, "no change" 15.0)."""
     from gpc.datasets.store import EpisodeStore
 
-    model = LatentWorldModelModule.load_from_checkpoint(latent)
-    net = model.model
+    model = LatentWorldModelModule.load_from_checkpoint(request.getfixturevalue(fixture))
+    net, pad = model.model, model.config.history - 1
+    assert model.n_obs_steps == model.config.history
     store = EpisodeStore.open(trained["tmp"] / "expert.zarr")
     errors: dict[str, list[float]] = {"observed": [], "true": [], "still": []}
     for episode in range(5):
         start = int(store.episode_ends[episode - 1]) if episode else 0
         states, actions = store.read("state")[start : start + 12], store.read("action")[start : start + 12]
-        imagined = model.imagine({"state": states[None, :1]}, torch.as_tensor(actions[None, None, :11]))[0, 0].numpy()
-        embedding = model._embed({"state": torch.as_tensor(states[None])})[0]
+        padded = np.concatenate([states[:1]] * pad + [states])
+        imagined = model.imagine({"state": padded[None, : pad + 1]}, torch.as_tensor(actions[None, None, :11]))[0, 0].numpy()
+        embedding = model._embed({"state": torch.as_tensor(padded[None])})[0]
+        assert len(embedding) == len(states)
         h, _ = net.initial(1, embedding.device)
         _, z = net.observe(h, embedding[:1], mode=True)
         observed = []
@@ -154,7 +161,7 @@ def test_the_rssm_imagines_the_rewards_its_posterior_reads_from_the_true_observa
         errors["true"].append(float(np.abs(imagined - true).mean()))
         errors["still"].append(float(np.abs(true - true[0]).mean()))
     still = np.mean(errors["still"])
-    assert np.mean(errors["observed"]) < 0.4 * still and np.mean(errors["true"]) < 0.4 * still, errors
+    assert np.mean(errors["observed"]) < bar * still and np.mean(errors["true"]) < bar * still, errors
 
 
 @pytest.fixture(scope="module")
@@ -163,6 +170,30 @@ def latent(trained) -> Path:
     config = latent_profile("tiny", "state", LAYOUT, lr=3e-3).config
     run = RunConfig(run_dir=tmp / "latent", max_steps=800, batch_size=32, progress=False, accelerator="cpu", checkpoint_every=1000)
     return train(LatentWorldModelModule, config, [tmp / "expert.zarr", tmp / "explore.zarr"], run).last  # 35 s on one thread
+
+
+@pytest.fixture(scope="module")
+def latent_history(trained) -> Path:
+    """The RSSM whose posterior reads the policy's two observations, stacked."""
+    tmp = trained["tmp"]
+    config = dataclasses.replace(latent_profile("tiny", "state", LAYOUT, lr=3e-3).config, history=2)
+    run = RunConfig(run_dir=tmp / "latent2", max_steps=800, batch_size=32, progress=False, accelerator="cpu", checkpoint_every=1000)
+    return train(LatentWorldModelModule, config, [tmp / "expert.zarr", tmp / "explore.zarr"], run).last
+
+
+def test_a_stacked_history_reads_the_observation_before_now_and_only_that(latent_history):
+    """With history 2 the first posterior reads the previous observation too: moving it changes the imagined rewards,
+    and the one before it (outside the history) changes nothing."""
+    model = LatentWorldModelModule.load_from_checkpoint(latent_history)
+    chunks = torch.tensor([[[list(GOAL)] * 8]])
+    now = np.array([40.0, 60.0])
+
+    def imagined(*before: np.ndarray) -> np.ndarray:
+        return model.imagine({"state": np.array([[*before, now]])}, chunks)[0, 0].numpy()
+
+    still, moving = imagined(now), imagined(np.array([10.0, 90.0]))
+    assert np.abs(still - moving).max() > 1e-3, (still, moving)
+    np.testing.assert_array_equal(imagined(np.array([0.0, 0.0]), now), still)
 
 
 def test_dreamer_ranks_the_chunk_that_reaches_the_goal_first_and_plugs_in_by_name(trained, latent):

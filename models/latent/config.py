@@ -35,6 +35,9 @@ class LatentConfig(PlainConfig, ReadsObservations):
     state_dim: int = 0  # width of the task's state, the decoder's target (filled in from the data)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)  # observation type (the policy's) and sizes
     sequence: int = 32  # steps per training sequence
+    # Observations each posterior reads: 1, the current one (DreamerV3); 2, it and the one before, stacked, as the policy
+    # reads its history (a decision starts from one posterior, which then sees velocities a single frame cannot show).
+    history: int = 1
     deter: int = 256  # GRU state width
     groups: int = 16  # categorical latents
     classes: int = 16  # classes per categorical
@@ -61,6 +64,8 @@ class LatentConfig(PlainConfig, ReadsObservations):
         for name in ("action_dim", "deter", "groups", "classes", "hidden"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
+        if self.history < 1:
+            raise ValueError(f"history {self.history}: must be at least 1")
         if self.sequence < 2:
             raise ValueError(f"sequence {self.sequence}: must be at least 2 (a step and what follows it)")
         if not 0.0 <= self.unimix < 1.0 or self.free_nats < 0 or self.dyn_scale < 0 or self.rep_scale < 0:

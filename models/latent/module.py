@@ -4,9 +4,9 @@ Training reads sequences of ``config.sequence`` steps (observations, actions, th
 reward there), filters them through the RSSM with the posterior, and minimises DreamerV3's loss:
 the decoder's error on the normalised state, the reward head's on the symlog of the scaled reward,
 and the balanced, free-bit-clipped KL terms. A decision starts from the posterior of the current
-observation (the model state a training sequence starts from: nothing before it), rolls each of
-the K chunks out with the prior's most likely latents, and scores the rewards it imagines
-(``config.aggregate``).
+observation, stacked with the ``config.history - 1`` before it (the model state a training sequence
+starts from: no state before it), rolls each of the K chunks out with the prior's most likely latents,
+and scores the rewards it imagines (``config.aggregate``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ class LatentWorldModelModule(ObservingModule):
     """An RSSM for one task and observation type; also the ``Scorer`` its planner (``dreamer``) ranks with."""
 
     KIND, WHAT, CONFIG = KIND, "latent world model", LatentConfig
-    n_obs_steps = 1  # a decision starts from the current observation
 
     def __init__(self, config: LatentConfig | Mapping[str, Any], normalizer: MinMaxNormalizer | None = None,
                  data: Mapping[str, Any] | None = None) -> None:
@@ -50,11 +49,17 @@ class LatentWorldModelModule(ObservingModule):
         self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
         self.model = RSSM(config, config.state_dim)
 
+    @property
+    def n_obs_steps(self) -> int:
+        """A decision starts from the posterior of the current observation (and the ``history - 1`` before it)."""
+        return self.config.history
+
     @classmethod
     def data_config(cls, config: LatentConfig, datasets: tuple[str, ...], run: RunConfig, split: tuple[int, float]) -> DataConfig:
         keys = config.obs_keys + (STATE_KEY,) + ((GOAL_KEY,) if config.reward_goal else ())
-        return DataConfig(paths=datasets, obs_keys=tuple(dict.fromkeys(keys)), horizon=config.sequence, n_obs_steps=1,
-                          n_action_steps=1, obs_steps_override=config.sequence, val_ratio=split[1], seed=split[0],
+        length = config.sequence + config.history - 1  # the first history - 1 steps are only read, stacked
+        return DataConfig(paths=datasets, obs_keys=tuple(dict.fromkeys(keys)), horizon=length, n_obs_steps=config.history,
+                          n_action_steps=1, obs_steps_override=length, val_ratio=split[1], seed=split[0],
                           batch_size=run.batch_size, num_workers=run.num_workers)
 
     @classmethod
@@ -75,16 +80,20 @@ class LatentWorldModelModule(ObservingModule):
             raise ValueError(f"the normaliser has no statistics for {', '.join(missing)} (build it from the data)")
 
     def _embed(self, obs: Mapping[str, Any]) -> torch.Tensor:
-        """``{key: (B, T, ...)}`` raw -> ``(B, T, hidden)`` embeddings."""
-        return self.model.embed(self.model.encoder(self._obs(obs)))
+        """``{key: (B, T, ...)}`` raw -> ``(B, T - history + 1, hidden)`` embeddings, each of its step and the
+        ``history - 1`` before it."""
+        features, n = self.model.encoder(self._obs(obs)), self.config.history
+        length = features.shape[1] - n + 1
+        return self.model.embed(torch.cat([features[:, i : i + length] for i in range(n)], dim=-1))
 
     def loss(self, batch: Batch) -> tuple[torch.Tensor, Logs]:
         cfg, net = self.config, self.model
         embedding = self._embed(batch)
-        actions = self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY].float())
-        states = batch[STATE_KEY].float()
+        skip = cfg.history - 1  # steps read only as the first embeddings' history
+        actions = self.normalizer.normalize(ACTION_KEY, batch[ACTION_KEY][:, skip:].float())
+        states = batch[STATE_KEY][:, skip:].float()
         b, length = states.shape[:2]
-        goal = batch[GOAL_KEY].float().flatten(0, 1) if cfg.reward_goal else None
+        goal = batch[GOAL_KEY][:, skip:].float().flatten(0, 1) if cfg.reward_goal else None
         with torch.no_grad():
             reward = stored_reward(cfg.reward, cfg.task)(states.flatten(0, 1)[:, None], goal).unflatten(0, (b, length))
         h, z = net.initial(b, states.device)
@@ -111,7 +120,8 @@ class LatentWorldModelModule(ObservingModule):
     def imagine(self, obs: Mapping[str, Any], chunks: torch.Tensor) -> torch.Tensor:
         """``{key: (B, T, ...)}`` raw histories, ``(B, K, T', A)`` raw chunks -> ``(B, K, T')`` imagined rewards."""
         net = self.model
-        embedding = self._embed({k: torch.as_tensor(np.asarray(v))[:, -1:] for k, v in obs.items() if k in self.obs_keys})[:, 0]
+        n = self.config.history
+        embedding = self._embed({k: torch.as_tensor(np.asarray(v))[:, -n:] for k, v in obs.items() if k in self.obs_keys})[:, 0]
         b, k, steps = chunks.shape[:3]
         h, _ = net.initial(b, embedding.device)
         _, z = net.observe(h, embedding, mode=True)

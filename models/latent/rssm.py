@@ -1,7 +1,8 @@
 """DreamerV3's recurrent state-space model: GRU state, categorical latents, a decoder and a reward head.
 
 At step t the model state is ``(h_t, z_t)``: ``h_t = GRU(h_{t-1}, [z_{t-1}, a_{t-1}])`` and ``z_t`` is
-drawn from the posterior ``q(z | h_t, e_t)`` (``e_t`` the observation's embedding) when observed, from the
+drawn from the posterior ``q(z | h_t, e_t)`` (``e_t`` the embedding of the observation, stacked with the
+``history - 1`` before it) when observed, from the
 prior ``p(z | h_t)`` when imagined. Latents are ``groups`` one-hot categoricals with a 1% uniform mix,
 sampled with straight-through gradients. Heads read ``[h_t, z_t]``: the decoder the normalised state,
 the reward head the symlog of the scaled reward.
@@ -34,7 +35,7 @@ class RSSM(nn.Module):
         self.config = config
         c = config
         self.encoder = ObsEncoder(c.encoder)
-        self.embed = MLP(self.encoder.feature_dim, c.hidden, c.hidden, 1, "silu", layer_norm=True)
+        self.embed = MLP(self.encoder.feature_dim * c.history, c.hidden, c.hidden, 1, "silu", layer_norm=True)
         self.inp = nn.Sequential(nn.Linear(c.stoch + c.action_dim, c.hidden), nn.LayerNorm(c.hidden), nn.SiLU())
         self.gru = nn.GRUCell(c.hidden, c.deter)
         self.prior = MLP(c.deter, c.stoch, c.hidden, 1, "silu", layer_norm=True)
