@@ -67,8 +67,8 @@ class LadiConfig(PlainConfig, ReadsObservations):
 def ladi_profile(name: str, layout: TaskLayout, policy: str, encoder: EncoderConfig, timeline: tuple[int, int],
                  lr: float | None = None) -> Profile[LadiConfig]:
     """``cpu``: the policy's CPU U-Net widths, 8 future latents, 8,000 steps (GPC's state world model's two phases; about
-    47 minutes on 2 cores: at 1,500 its held-out denoising loss was still falling and its 8-step predictions were worse
-    than "nothing moves"); ``paper``: Diffusion Policy's widths;
+    60 minutes alone on 2 cores at 0.45 s per step; at 1,500 its held-out denoising loss was still falling);
+    ``paper``: Diffusion Policy's widths;
     ``tiny``: tests. ``encoder`` and ``timeline`` are the policy's (its frozen encoder, history and executed chunk)."""
     base = LadiConfig(task=layout.name, policy=policy, action_dim=layout.action.dim, encoder=encoder,
                       n_obs_steps=timeline[0], future=timeline[1], reward_goal=encoder.goal)

@@ -2,10 +2,9 @@
 
 At step t the model state is ``(h_t, z_t)``: ``h_t = GRU(h_{t-1}, [z_{t-1}, a_{t-1}])`` and ``z_t`` is
 drawn from the posterior ``q(z | h_t, e_t)`` (``e_t`` the embedding of the observation, stacked with the
-``history - 1`` before it) when observed, from the
-prior ``p(z | h_t)`` when imagined. Latents are ``groups`` one-hot categoricals with a 1% uniform mix,
-sampled with straight-through gradients. Heads read ``[h_t, z_t]``: the decoder the normalised state,
-the reward head the symlog of the scaled reward.
+``history - 1`` before it) when observed, from the prior ``p(z | h_t)`` when imagined. Latents are
+``groups`` one-hot categoricals with a 1% uniform mix, sampled with straight-through gradients. Heads
+read ``[h_t, z_t]``: the decoder the normalised state, the reward head the symlog of the scaled reward.
 """
 
 from __future__ import annotations
