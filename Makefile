@@ -29,6 +29,8 @@ CPU_EXPERT_EPISODES.swap := 400
 # Per task, vision: the paper's vision row (`gpc compare --paper`, the task's PAPER) where it has one.
 PAPER_VISION.pusht := --paper pusht-vision
 PAPER_VISION.swap := --paper swap-vision
+PAPER_VISION.draw := --paper draw-vision
+PAPER_VISION.stack := --paper stack-vision
 POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
 TITLE := $(or $(TITLE.$(TASK)),$(TASK))
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
@@ -221,7 +223,7 @@ endif
 help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
-	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
+	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap|draw|stack; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make reproduce-baselines  the paper's Table III baselines (V-GPS, DreamerV3-style, LaDi-WM-style) on the state policy's proposals beside GPC-RANK and the ceiling (SEEDS=100000:100050: its protocol)"
 	@echo "make reproduce-baselines-vision  the same baselines on the image policy's proposals, beside the vision table's GPC rows (VBASELINE_SEEDS=100000:100050)"
 	@echo "make reproduce-pusht-vision   the same for TASK=pusht (the default)"

@@ -114,6 +114,20 @@ class ObjectLook:
 
 
 @dataclass(frozen=True)
+class RegionLook:
+    """A part of a frame with extent but no pose (Triangle Drawing's ink): a readout compares where it lies, pixel
+    by pixel, since there is no centroid or angle that says what it is."""
+
+    name: str
+    colours: tuple[tuple[int, int, int], ...]  # RGB it is drawn in
+    tolerance: float = 40.0  # RGB distance (0..255) within which a pixel belongs to it
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.colours or self.tolerance <= 0:
+            raise ValueError(f"region look {self.name!r}: need a name, a colour and a positive tolerance")
+
+
+@dataclass(frozen=True)
 class FrameLayout:
     """How a rendered frame maps to world coordinates, and how it draws the agent and the objects."""
 
@@ -121,6 +135,7 @@ class FrameLayout:
     marker_size: float  # the agent's drawn radius (world units): the size of an action drawn into a frame
     objects: tuple[ObjectLook, ...] = ()  # how each object of the layout is drawn (in its order), for colour readouts
     agent_colours: tuple[tuple[int, int, int], ...] = ()  # RGB of the agent
+    regions: tuple[RegionLook, ...] = ()  # parts with extent but no pose, for pixel readouts (a drawing's ink)
 
     @property
     def span(self) -> float:

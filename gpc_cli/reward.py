@@ -34,7 +34,8 @@ def train(
     from gpc.harness.training import train_component
     from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
 
-    chosen = reward_profile(profile, get_task(task).layout, input_size=image_size, lr=lr)
+    spec = get_task(task)
+    chosen = reward_profile(profile, spec.layout, input_size=image_size, lr=lr, state_reward=spec.state_reward)
     echo_result(train_component(RewardPredictorModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 

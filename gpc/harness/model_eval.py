@@ -94,16 +94,24 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
             raise ValueError(f"--noise {noise!r}: use one of {', '.join(NOISE_MODES)}")
         if sampler_steps is not None:
             module.dynamics.use_sampler(dataclasses.replace(module.dynamics.config.sampler, steps=sampler_steps))
-        colour = ColourReadout.from_layout(layout)
-        readout: ColourReadout | LearnedPoseReadout = colour
+        from gpc.models.world_models.regions import RegionReadout
+
+        regions = RegionReadout.from_layout(layout)
+        # Objects are read by colour where the task names how they are drawn; a drawing's ink is a region, and a
+        # perspective camera's shaded boxes (Block Stacking) have no planar colour readout: image figures only.
+        frame = layout.frame
+        colour = ColourReadout.from_layout(layout) if frame is not None and frame.objects and frame.agent_colours else None
+        readout: ColourReadout | LearnedPoseReadout | None = colour
         if pose_reader is not None:
+            if colour is None:
+                raise ValueError(f"--pose-reader: task {layout.name}'s frames name no object colours to read poses beside")
             from gpc.models.rewards.learned import RewardPredictorModule
 
             predictor = RewardPredictorModule.load_from_checkpoint(pose_reader, task=module.config.task).predictor
             readout = LearnedPoseReadout(colour, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon,
                                                 readout=readout, stride=stride or IMAGE_STRIDE,
-                                                max_windows=max_windows, noise=noise, held_out_of=held_out_of)
+                                                max_windows=max_windows, noise=noise, held_out_of=held_out_of, regions=regions)
         table = visual_markdown_table(report, f"Visual world model rollouts: {checkpoint}")
         interrupts.check()
         out.mkdir(parents=True, exist_ok=True)
@@ -134,23 +142,30 @@ def evaluate_reward(checkpoint: Path, datasets: Sequence[Path], out: Path | None
                     image_size: int | None = None) -> Written:
     """Predicted vs true registration loss on the held-out frames of ``datasets`` and on every frame of each ``ood`` store."""
     from gpc.models.rewards.learned import RewardPredictorModule
-    from gpc.models.rewards.learned_eval import evaluate_reward_predictor, markdown_report
+    from gpc.models.rewards.learned_eval import evaluate_reward_predictor, evaluate_state_reader, markdown_report, state_reader_report
+    from gpc.models.rewards.state import state_reward
 
     out = out or default_out(checkpoint)
     check_out(out)
     claim([out / name for name in REWARD_FILES])
     with exclusive(out, "evaluation folder"):
         module = RewardPredictorModule.load_from_checkpoint(checkpoint)
+        reader = module.config.state_reward  # a state reader: scored by the task's own state reward
+        reward = state_reward(reader, get_task(module.config.task).layout) if reader else None
         sets = [(list(datasets), split)] + [([p], "all") for p in ood]
         reports = []
         for paths, which in sets:
-            report = evaluate_reward_predictor(module, paths, split=which, episodes=episodes, stride=stride,
+            if reward is not None:
+                report = evaluate_state_reader(module, paths, reward, split=which, episodes=episodes, stride=stride,
                                                frame_size=image_size)
+            else:
+                report = evaluate_reward_predictor(module, paths, split=which, episodes=episodes, stride=stride,
+                                                   frame_size=image_size)
             report["checkpoint"] = str(checkpoint)
             reports.append(report)
             interrupts.check()
         out.mkdir(parents=True, exist_ok=True)
-        table = markdown_report(reports, f"Image reward: {checkpoint}")
+        table = (state_reader_report if reward is not None else markdown_report)(reports, f"Image reward: {checkpoint}")
         write_atomic(out / "reward_eval.json", json.dumps(reports, indent=2))
         write_atomic(out / "reward_eval.md", table)
     return Written(table, (out / "reward_eval.json", out / "reward_eval.md"))

@@ -84,10 +84,11 @@ def build_reward(spec: RewardSpec, task: Task, device: str = "cpu") -> Any:
     if spec.kind == "registration":
         return _on(registration, device)
     if spec.kind == "learned":
-        from gpc.models.rewards.learned import ImageReward
+        from gpc.models.rewards.image_state import learned_image_reward
 
         assert spec.checkpoint is not None  # RewardSpec refuses a learned reward without one
-        return ImageReward.from_checkpoint(spec.checkpoint, task.layout.goal, config, map_location=device, task=task.name).to(device)
+        return learned_image_reward(spec.checkpoint, registration, task.layout.goal, config, map_location=device,
+                                    task=task.name).to(device)
     from gpc.models.rewards.vlm import VLMReward
 
     return VLMReward(spec.vlm, render=task.render_state, fallback=registration, task_description=task.description)

@@ -1,31 +1,29 @@
 """The learned image reward: a ResNet18 + MLP that reads the task's objects' poses from one frame.
 
-The network predicts each object's pose ``(x, y[, cos theta, sin theta])`` of a frame (labels:
-the recorded state's pose entries, ``config.pose_dims``, object after object (``pose_sizes``);
-an angle as cos, sin has no wrap-around).
-``ImageReward`` turns the predicted pose into ``-registration`` against the goal with
-``gpc.models.rewards.registration``'s ``registration_distance`` and aggregates it like ``RegistrationReward``
-(``RewardConfig``: final step or discounted sum), so it is differentiable w.r.t. the pixels
-of predicted frames::
+The network predicts each object's pose ``(x, y[, cos theta, sin theta])`` of a frame (labels: the recorded state's
+pose entries, ``config.pose_dims``, object after object; an angle as cos, sin has no wrap-around). ``ImageReward``
+turns the predicted pose into ``-registration`` against the goal (``gpc.models.rewards.registration``) and aggregates
+it like ``RegistrationReward`` (final step or discounted sum), differentiable w.r.t. the pixels of predicted frames::
 
     frames (K, T, 3, S, S) in [0, 1] -> resize to input_size -> ResNet18 trunk -> pool
         -> MLP (512-256-128) -> (x_n, y_n, cos, sin) -> pose (x, y, theta) -> -registration -> (K,)
 
-Frames of any size are resized (differentiably, ``F.interpolate``) to ``input_size``, the
-size the network was trained at. Training augments frames with small random translations
-(the label moves with the picture, which needs ``frame_extent``: the world units a frame
-spans, x along columns, y along rows) and random Gaussian blur (predicted frames are blurry).
+Frames of any size are resized to ``input_size``; training shifts them (the label moves with the picture:
+``frame_extent``) and blurs them (predicted frames are blurry); see ``gpc.models.rewards.augment``.
 
 ``RewardPredictorModule`` trains it (batch in, loss and logs out) and checkpoints it
-(``kind="reward"``, task, obs ``image``, input size); ``load_from_checkpoint(path)`` alone
-rebuilds it, normaliser included. The task's vertices, goal and frame extent are filled
-into the config by the caller (``with_task``), so this module knows no task.
+(``kind="reward"``, task, obs ``image``, input size), normaliser included. The task's vertices, goal and frame
+extent are filled into the config by the caller (``with_task``), so this module knows no task.
+
+A task scored by its own state reward (``Task.state_reward`` other than ``registration``: Triangle Drawing's ink,
+Block Stacking's heights) has no poses to register: its predictor reads the whole state vector instead
+(``StatePredictor``; ``config.state_reward`` names the reward) and ``gpc.models.rewards.image_state`` scores the
+read states with that reward, so frames are ranked by the function states are.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -41,6 +39,7 @@ from gpc.datasets.layout import TaskLayout
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
 from gpc.models.networks.resnet import ResNet18Trunk
+from gpc.models.rewards.augment import random_blur, random_shift, resize
 from gpc.models.rewards.registration import PoseReward, RewardConfig, pose_errors
 from gpc.models.training.config import OptimConfig, Profile, RunConfig
 from gpc.models.training.config_io import PlainConfig
@@ -68,6 +67,8 @@ class RewardPredictorConfig(PlainConfig):
     vertex_counts: tuple[int, ...] = ()  # points per object; () is one object, all of vertices
     goal: tuple[float, ...] | None = None  # default goal, laid out as pose_dims (None: the task draws one per episode)
     frame_extent: float | None = None  # world units a frame spans (from the task); needed for label-consistent shifts
+    state_reward: str = ""  # the task's own state reward (its name): the predictor reads the whole state, not poses
+    state_dim: int = 0  # the state entries it reads then (all of them)
     shift_px: float = 4.0  # training: uniform random translation up to this many input pixels (0: none)
     blur_prob: float = 0.5  # training: share of frames blurred
     blur_sigma: float = 1.0  # training: blur standard deviation drawn from U(0, blur_sigma) input pixels
@@ -94,13 +95,16 @@ class RewardPredictorConfig(PlainConfig):
             raise ValueError(f"goal {self.goal}: need one value per pose entry {self.pose_dims}")
         if self.frame_extent is not None and self.frame_extent <= 0:
             raise ValueError(f"frame_extent {self.frame_extent}: must be positive")
+        if self.state_reward and (self.state_dim < 1 or self.pose_dims or self.shift_px > 0):
+            raise ValueError(f"state_reward {self.state_reward!r}: a state reader needs state_dim >= 1, no pose_dims and "
+                             "shift_px 0 (a shifted frame changes state entries in task-specific ways)")
         if self.shift_px < 0 or self.blur_sigma < 0 or not 0.0 <= self.blur_prob <= 1.0:
             raise ValueError("shift_px and blur_sigma must be >= 0 and blur_prob in [0, 1]")
 
     @property
     def sizes(self) -> tuple[int, ...]:
         """Pose entries per object."""
-        return self.pose_sizes or (len(self.pose_dims),)
+        return self.pose_sizes or ((len(self.pose_dims),) if self.pose_dims else ())
 
     @property
     def object_vertices(self) -> list[tuple[tuple[float, float], ...]]:
@@ -111,10 +115,14 @@ class RewardPredictorConfig(PlainConfig):
             start += n
         return out
 
-    def with_task(self, layout: TaskLayout) -> RewardPredictorConfig:
-        """A copy that knows the task: its name, the objects' pose entries, outlines and default goal, the frame's span."""
+    def with_task(self, layout: TaskLayout, state_reward: str = "registration") -> RewardPredictorConfig:
+        """A copy that knows the task: its name, the objects' pose entries, outlines and default goal, the frame's span;
+        for a task scored by its own ``state_reward``, the state it reads instead (no shifts: see ``state_reward``)."""
         if layout.frame is None:
-            raise ValueError(f"the learned image reward reads poses from frames; task {layout.name} renders none")
+            raise ValueError(f"the learned image reward reads frames; task {layout.name} renders none")
+        if state_reward != "registration":
+            return dataclasses.replace(self, task=layout.name, state_reward=state_reward, state_dim=layout.state.dim,
+                                       frame_extent=layout.frame.span, shift_px=0.0)
         several = len(layout.objects) > 1  # one object keeps the fields a single-object config always had
         return dataclasses.replace(
             self, task=layout.name, pose_dims=layout.pose_dims, goal=layout.goal, frame_extent=layout.frame.span,
@@ -123,6 +131,8 @@ class RewardPredictorConfig(PlainConfig):
             vertex_counts=tuple(len(o.vertices) for o in layout.objects) if several else ())
 
     def check_task(self) -> None:
+        if self.state_reward:
+            return  # __post_init__ checked the state reader's fields
         if not self.vertices or not self.pose_dims:
             raise ValueError("the reward predictor's config has no pose entries or vertices; fill them with "
                              "config.with_task(layout)")
@@ -130,10 +140,11 @@ class RewardPredictorConfig(PlainConfig):
             raise ValueError("shift augmentation needs frame_extent (the world units a frame spans); see with_task")
 
 
-def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
-                   lr: float | None = None) -> Profile[RewardPredictorConfig]:
+def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None, lr: float | None = None,
+                   state_reward: str = "registration") -> Profile[RewardPredictorConfig]:
     """``cpu``: ResNet18 at width 32 on 64 px frames; ``paper``: full ResNet18 on 96 px; ``tiny``: tests.
-    ``input_size``: the frame size the network reads (match the world model's); ``lr``: another peak learning rate."""
+    ``input_size``: the frame size the network reads (match the world model's); ``lr``: another peak learning rate;
+    ``state_reward``: the task's (``Task.state_reward``; see ``with_task``)."""
     task = layout.name
     if name == "cpu":
         # 3.5M parameters; 3,000 steps took 14 min on one thread here (expert + exploration stores),
@@ -152,39 +163,7 @@ def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
         config = dataclasses.replace(config, input_size=input_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
-    return Profile(config.with_task(layout), batch, steps)
-
-
-def resize(frames: torch.Tensor, size: int) -> torch.Tensor:
-    """``(N, C, H, W)`` -> ``(N, C, size, size)``, antialiased bilinear (differentiable); unchanged if already that size."""
-    if frames.shape[-2:] == (size, size):
-        return frames
-    return F.interpolate(frames, size=(size, size), mode="bilinear", align_corners=False, antialias=True)
-
-
-def random_shift(x: torch.Tensor, max_px: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Translate each ``(N, C, S, S)`` image by up to ``max_px`` px (edges repeated) -> images, ``(N, 2)`` shifts (x, y) px."""
-    n, s = x.shape[0], x.shape[-1]
-    shift = (torch.rand(n, 2, device=x.device) * 2.0 - 1.0) * max_px
-    theta = torch.zeros(n, 2, 3, device=x.device, dtype=x.dtype)
-    theta[:, 0, 0] = theta[:, 1, 1] = 1.0
-    theta[:, :, 2] = -2.0 * shift.to(x.dtype) / s  # output(p) = input(p - shift): the content moves by +shift
-    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
-    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False), shift
-
-
-def random_blur(x: torch.Tensor, prob: float, max_sigma: float) -> torch.Tensor:
-    """Blur a random ``prob`` share of ``(N, C, H, W)`` images with a Gaussian of sigma ~ U(0, max_sigma) px."""
-    n, c, h, w = x.shape
-    radius = max(1, math.ceil(2.0 * max_sigma))
-    sigma = torch.rand(n, device=x.device) * max_sigma * (torch.rand(n, device=x.device) < prob)
-    taps = torch.arange(-radius, radius + 1, device=x.device, dtype=x.dtype)
-    kernel = torch.exp(-taps.pow(2) / (2.0 * sigma.clamp_min(1e-3).to(x.dtype)[:, None] ** 2))
-    kernel = (kernel / kernel.sum(dim=1, keepdim=True)).repeat_interleave(c, dim=0)  # (N * C, K)
-    flat = F.pad(x.reshape(1, n * c, h, w), (radius,) * 4, mode="replicate")
-    flat = F.conv2d(flat, kernel[:, None, None, :], groups=n * c)
-    flat = F.conv2d(flat, kernel[:, None, :, None], groups=n * c)
-    return flat.reshape(n, c, h, w)
+    return Profile(config.with_task(layout, state_reward), batch, steps)
 
 
 class PosePredictor(nn.Module):
@@ -207,10 +186,14 @@ class PosePredictor(nn.Module):
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Linear(a, b), nn.ReLU()]
         self.sizes = config.sizes
-        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], sum(2 + 2 * (n == 3) for n in self.sizes)))
+        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], self.outputs()))
         starts = [sum(self.sizes[:i]) for i in range(len(self.sizes))]
         self.xy_dims = [config.pose_dims[s + j] for s in starts for j in (0, 1)]  # every object's x, y entries
         self._angles = [config.pose_dims[s + 2] for s, n in zip(starts, self.sizes) if n == 3]
+
+    def outputs(self) -> int:
+        """The head's outputs: each object's ``(x_n, y_n[, cos, sin])``."""
+        return sum(2 + 2 * (n == 3) for n in self.config.sizes)
 
     def check_normalizer(self) -> None:
         missing = [k for k in (IMAGE_KEY, STATE_KEY) if k not in self.normalizer.keys()]
@@ -256,6 +239,21 @@ class PosePredictor(nn.Module):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, P)`` predicted poses, differentiable."""
         return self.to_pose(self.raw(self.prepare(frames)))
+
+
+class StatePredictor(PosePredictor):
+    """``(N, 3, H, W)`` frames -> ``(N, D)`` whole states, each entry predicted in [-1, 1] of its training range: the
+    reader of a task scored by its own state reward (``config.state_reward``)."""
+
+    def outputs(self) -> int:
+        return self.config.state_dim
+
+    def targets(self, states: torch.Tensor) -> torch.Tensor:
+        return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]
+
+    def to_pose(self, out: torch.Tensor) -> torch.Tensor:
+        """``(N, D)`` outputs -> ``(N, D)`` states in raw units (an entry that never varied reads as its one value)."""
+        return (out - self.normalizer.offsets[STATE_KEY]) / self.normalizer.scales[STATE_KEY]
 
 
 class ImageReward(PoseReward):
@@ -308,7 +306,7 @@ class RewardPredictorModule(TrainableModule):
         config = RewardPredictorConfig.from_dict(config)
         super().__init__(config, data)
         self.config: RewardPredictorConfig = config
-        self.predictor = PosePredictor(config, normalizer)
+        self.predictor = (StatePredictor if config.state_reward else PosePredictor)(config, normalizer)
         self.track_ema()
 
     @property
@@ -353,7 +351,9 @@ class RewardPredictorModule(TrainableModule):
         img, state = arrays.data[IMAGE_KEY], arrays.data[STATE_KEY]
         if img.ndim != 4 or img.shape[-1] != 3:
             raise DataError(f"{source}: data/{IMAGE_KEY} rows are {img.shape[1:]}, the reward needs RGB frames (H, W, 3)")
-        if state.ndim != 2 or state.shape[1] <= max(config.pose_dims):
+        if config.state_reward and (state.ndim != 2 or state.shape[1] != config.state_dim):
+            raise DataError(f"{source}: data/{STATE_KEY} rows are {state.shape[1:]}, the reward reads ({config.state_dim},) states")
+        if not config.state_reward and (state.ndim != 2 or state.shape[1] <= max(config.pose_dims)):
             raise DataError(f"{source}: data/{STATE_KEY} rows are {state.shape[1:]}, the pose sits at {config.pose_dims}")
         return config
 
@@ -389,6 +389,8 @@ class RewardPredictorModule(TrainableModule):
         out = self.predictor.raw(self.predictor.prepare(frames))
         loss = F.mse_loss(out, self.predictor.targets(states))
         c = self.config
+        if c.state_reward:  # a state reader: its entries' mean error in raw units (the reward's error: `gpc eval reward`)
+            return loss, {"state_abs_err": (self.predictor.to_pose(out) - states).abs().mean()}
         verts = [torch.tensor(v, device=out.device) for v in c.object_vertices]
         goal = None if c.goal is None else torch.tensor(c.goal, device=out.device)
         errors = pose_errors(self.predictor.to_pose(out), states[:, list(c.pose_dims)], verts, goal, c.sizes)

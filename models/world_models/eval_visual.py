@@ -8,7 +8,8 @@ baseline that copies the last context frame. Image figures: SSIM (torchmetrics) 
 SSIM rewards blur, so the figures that matter to a planner come from a readout
 (``gpc.models.world_models.readout``): every object's pose read from a frame by colour or by the
 learned reward's pose predictor, against the pose read the same way from the recorded frame, on
-the windows where that object moves, and whether the agent is still visible (by colour).
+the windows where that object moves, and whether the agent is still visible (by colour). A region with extent but
+no pose (a drawing's ink) is compared pixel by pixel (``gpc.models.world_models.regions``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from gpc.models.world_models.config import IMAGE_KEY, VisualWorldModelConfig
 from gpc.models.world_models.eval_state import episodes_phrase, held_out_windows
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.readout import ColourReadout, LearnedPoseReadout, pose_errors
+from gpc.models.world_models.regions import RegionReadout, regions_markdown
 from gpc.models.world_models.visual import ACTION_KEY, VisualDynamics
 
 __all__ = ["ColourReadout", "LearnedPoseReadout", "evaluate_visual_rollouts", "frame_grid", "readout_figures", "visual_markdown_table"]
@@ -51,9 +53,11 @@ def evaluate_visual_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
     horizon: int | None = None, readout: ColourReadout | LearnedPoseReadout | None = None, stride: int = 8, max_windows: int | None = 512,
     batch_size: int = 32, noise: str = "frozen", grid_windows: int = 6, seed: int = 0, held_out_of: HeldOutOf | None = None,
+    regions: RegionReadout | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
-    """Per-step SSIM / PSNR (and, with ``readout``, object pose errors and agent visibility) of the
-    model and of the nothing-moves baseline; returns (report, PNG grid as ``(H, W, 3)`` uint8 RGB).
+    """Per-step SSIM / PSNR (and, with ``readout``, object pose errors and agent visibility; with ``regions``, each
+    region's wrong pixels) of the model and of the nothing-moves baseline; returns (report, PNG grid as ``(H, W, 3)``
+    uint8 RGB).
 
     Windows as ``held_out_windows`` picks them (every ``stride`` steps, at most ``max_windows``; ``held_out_of``).
     """
@@ -96,6 +100,9 @@ def evaluate_visual_rollouts(
     if readout is not None:
         report["readout"] = readout_figures(readout, model, true, last)
         report["readout_config"] = readout.describe()
+    if regions is not None:
+        report["regions"] = regions.figures(model, true, last)
+        report["regions_config"] = regions.describe()
     return report, frame_grid(last[:grid_windows], true[:grid_windows], model[:grid_windows])
 
 
@@ -167,7 +174,15 @@ def frame_grid(last: np.ndarray, true: np.ndarray, pred: np.ndarray, scale: int 
 
 def visual_markdown_table(report: dict[str, Any], title: str = "Visual world model rollouts") -> str:
     """One row per predicted frame: SSIM and PSNR (and the first object's pose errors, agent visibility) as model /
-    baseline; then each object's errors on the final frame of the windows where it moves."""
+    baseline; then each object's errors on the final frame of the windows where it moves; then each region's."""
+    table = _readout_table(report, title)
+    if "regions" not in report:
+        return table
+    return table + "\n".join(regions_markdown(report["regions"], [row["actions"] for row in report["steps"]])) + "\n"
+
+
+def _readout_table(report: dict[str, Any], title: str) -> str:
+    """The image figures and the objects' readout (``visual_markdown_table`` without regions)."""
     ro = report.get("readout")
     keys = [k for k in ("object_units", "object_deg", "object_vertex_units") if ro and k in ro["per_step"]["model"]]
     objects = (ro.get("objects") or {"object": ro}) if ro else {}

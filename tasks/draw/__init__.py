@@ -17,7 +17,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gpc.datasets.layout import ActionBox, FrameLayout, StateLayout, TaskLayout
+from gpc.datasets.layout import ActionBox, FrameLayout, RegionLook, StateLayout, TaskLayout
 from gpc.tasks.base import Task
 from gpc.tasks.draw import geometry, render
 from gpc.tasks.draw import record as draw_record
@@ -41,7 +41,8 @@ LAYOUT = TaskLayout(
     state=StateLayout(dim=STATE_DIM, agent_xy=(0, 1), action_targets=(0, 1)),
     action=ActionBox(dim=2, low=0.0, high=WORKSPACE),
     objects=(),
-    frame=FrameLayout(extent=(0.0, WORKSPACE), marker_size=geometry.PEN_RADIUS, agent_colours=(AGENT_EDGE,)),
+    frame=FrameLayout(extent=(0.0, WORKSPACE), marker_size=geometry.PEN_RADIUS, agent_colours=(AGENT_EDGE,),
+                      regions=(RegionLook("ink", (render.INK,), tolerance=100.0),)),  # ink: nearer ink than the pen's blue
 )
 
 # The paper's Table III row for this task (50 seeds, K=100, learned reward), keyed by gpc's controller labels.

@@ -1,0 +1,125 @@
+"""Vision for a task scored by its own state reward (Triangle Drawing): the image reward reads the whole state from a
+frame and scores it with the task's reward; the visual world model's ink is judged pixel by pixel. Real drawings
+from the task's expert and renderer, a real (tiny) training."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gpc.datasets.store import EpisodeStore
+from gpc.models.rewards.image_state import StateImageReward, learned_image_reward
+from gpc.models.rewards.learned import RewardPredictorConfig, RewardPredictorModule, StatePredictor, reward_profile
+from gpc.models.rewards.learned_eval import evaluate_state_reader, state_reader_report
+from gpc.models.rewards.registration import RewardConfig
+from gpc.models.rewards.state import state_reward
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import train
+from gpc.models.world_models.eval_visual import visual_markdown_table
+from gpc.models.world_models.regions import RegionReadout
+from gpc.tasks import get_task
+from gpc.tasks.draw import geometry, render
+
+DRAW, PUSHT = get_task("draw"), get_task("pusht")
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory) -> Path:
+    """Four expert drawings with frames, as `gpc collect --task draw` records them."""
+    path = tmp_path_factory.mktemp("data") / "draw.zarr"
+    out = EpisodeStore.create(path, {"task": "draw"})
+    for seed in range(4):
+        arrays, _ = DRAW.record("expert", seed, "fixed", True, 40)
+        out.append_episode({k: arrays[k] for k in ("img", "state", "action")}, seed=seed)
+    return path
+
+
+@pytest.fixture(scope="module")
+def trained(store, tmp_path_factory):
+    config = reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config
+    run = RunConfig(run_dir=tmp_path_factory.mktemp("runs") / "reward", max_steps=12, batch_size=16, progress=False,
+                    accelerator="cpu", val_ratio=0.25, val_every=6)
+    return train(RewardPredictorModule, config, [store], run)
+
+
+def test_a_task_scored_by_its_own_reward_gets_a_state_reader_and_push_t_keeps_its_poses():
+    draw = reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config
+    assert draw.state_reward == DRAW.state_reward and draw.state_dim == DRAW.layout.state.dim == 33
+    assert draw.pose_dims == () and draw.shift_px == 0.0  # a shift moves the pen, not the ink's shares
+    pusht = reward_profile("tiny", PUSHT.layout, state_reward=PUSHT.state_reward).config
+    assert pusht.state_reward == "" and pusht.pose_dims == PUSHT.layout.pose_dims and pusht.shift_px > 0
+    with pytest.raises(ValueError, match="shift_px 0"):
+        dataclasses.replace(draw, shift_px=2.0)
+    with pytest.raises(ValueError, match="state_dim >= 1"):
+        RewardPredictorConfig(task="draw", state_reward=DRAW.state_reward)
+
+
+def test_the_state_reader_scores_frames_with_the_task_reward(trained, store):
+    module = RewardPredictorModule.load_from_checkpoint(trained.last, task="draw")
+    predictor = module.predictor
+    assert isinstance(predictor, StatePredictor)
+    ep = EpisodeStore.open(store).episode(0, ["img", "state"])
+    states = torch.from_numpy(ep["state"]).float()
+    # labels and back: the read state is in raw units (pen px, ink shares)
+    assert torch.allclose(predictor.to_pose(predictor.targets(states)), states, atol=1e-4)
+    ink = state_reward(DRAW.state_reward, DRAW.layout, RewardConfig())
+    reward = learned_image_reward(trained.last, ink, task="draw")
+    assert isinstance(reward, StateImageReward)
+    frames = (torch.from_numpy(ep["img"]).permute(0, 3, 1, 2).float() / 255.0)[None].requires_grad_(True)  # (1, T, 3, S, S)
+    score = reward(frames)
+    read = predictor(frames[0, -1:].detach())
+    assert torch.allclose(score, ink(read[None]), atol=1e-5)  # the task's F1 on the state read from the last frame
+    score.sum().backward()
+    assert frames.grad is not None and frames.grad[0, -1].abs().sum() > 0 and frames.grad[0, :-1].abs().sum() == 0
+
+
+def test_the_state_reader_is_judged_by_the_reward_of_the_recorded_states(trained, store):
+    module = RewardPredictorModule.load_from_checkpoint(trained.last, task="draw")
+    ink = state_reward(DRAW.state_reward, DRAW.layout, RewardConfig())
+    report = evaluate_state_reader(module, [store], ink, split="all")
+    recorded = EpisodeStore.open(store)
+    truth = np.concatenate([[geometry.f1_from_summary(s[8:]) for s in recorded.episode(i, ["state"])["state"]]
+                            for i in range(recorded.n_episodes)])
+    assert report["frames"] == len(truth) and report["true_reward_mean"] == pytest.approx(truth.mean(), abs=1e-5)
+    assert len(report["state_abs_err"]) == 33 and report["reward_mae"] >= 0
+    assert f"| draw.zarr | all | 4 | {len(truth)} |" in state_reader_report([report])
+
+
+def _scene(vertices: np.ndarray, cells: list[tuple[int, int]]) -> np.ndarray:
+    ink = np.zeros((128, 128), bool)
+    for r, c in cells:
+        ink[r, c] = True
+    return render.draw_scene(vertices, ink, np.array([40.0, 40.0]))
+
+
+def test_ink_is_judged_pixel_by_pixel_against_nothing_changes():
+    readout = RegionReadout.from_layout(DRAW.layout)
+    assert readout is not None and RegionReadout.from_layout(PUSHT.layout) is None
+    vertices = np.array([[256.0, 100.0], [400.0, 380.0], [110.0, 380.0]])
+    def stroke(length: int) -> list[tuple[int, int]]:  # 5 cells (20 px, the pen's width) high, `length` cells long
+        return [(25 + r, 60 + c) for c in range(length) for r in range(5)]
+
+    last = _scene(vertices, stroke(10))[None]
+    true = np.stack([_scene(vertices, stroke(20)), _scene(vertices, stroke(40))])[None]  # (1, T=2, S, S, 3)
+    still = np.repeat(last[:, None], 2, axis=1)
+    exact = readout.figures(true, true, last)["ink"]
+    assert exact["per_step"]["model"] == [0.0, 0.0] and exact["changing_windows"] == 1
+    gained = exact["per_step"]["baseline"]
+    assert 0 < gained[0] < gained[1]  # the ink the baseline misses grows with the stroke
+    assert gained[1] == pytest.approx(30 * 5 * (4 * 96 / 512) ** 2, rel=0.25)  # 30 x 5 more cells of 4 px at 96 / 512
+    lazy = readout.figures(still, true, last)["ink"]  # a model that predicts nothing changes is the baseline
+    assert lazy["final_changing"]["ratio"] == pytest.approx(1.0)
+    report = {"windows": 1, "episodes": 1, "split": "val", "resolution": 96, "frameskip": 8, "noise": "frozen",
+              "sampler": {"steps": 3}, "steps": [{"step": 1, "actions": 8, "model": {"ssim": 1.0, "psnr": 40.0},
+                                                  "baseline": {"ssim": 0.9, "psnr": 30.0}},
+                                                 {"step": 2, "actions": 16, "model": {"ssim": 1.0, "psnr": 40.0},
+                                                  "baseline": {"ssim": 0.9, "psnr": 30.0}}],
+              "regions": {"ink": exact}}
+    md = visual_markdown_table(report)
+    assert "| 2 (16) | 0.0 / " in md and "ink: on the 1 windows where it changes" in md
