@@ -31,6 +31,9 @@ PAPER_VISION.pusht := --paper pusht-vision
 PAPER_VISION.swap := --paper swap-vision
 PAPER_VISION.draw := --paper draw-vision
 PAPER_VISION.stack := --paper stack-vision
+# Per task, vision: how the planning world model's evaluation reads objects where colour cannot (Block Stacking's
+# perspective camera): the learned reward's state reader, heights included.
+VWM_READER.stack = --pose-reader $(REWARD_CKPT)
 POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
 TITLE := $(or $(TITLE.$(TASK)),$(TASK))
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
@@ -467,7 +470,7 @@ $(VWM_RUN)-onpolicy-1step.done: $(VWM_RUN)-onpolicy.done
 	if [ -f $(VONPOLICY_STUDENT_CKPT) ]; then resume=--resume; fi; \
 	$(BIN)/gpc train world-model --task $(TASK) --distill $(VONPOLICY_CKPT) --sampler-steps 1 $(WM_DATA) --dataset $(VRECORDED) $(VDISTILL) \
 	  --seed 0 --out $(VWM_RUN)-onpolicy-1step $$resume
-	$(BIN)/gpc eval world-model $(VONPOLICY_STUDENT_CKPT) $(WM_DATA) --dataset $(VRECORDED)
+	$(BIN)/gpc eval world-model $(VONPOLICY_STUDENT_CKPT) $(WM_DATA) --dataset $(VRECORDED) $(VWM_READER.$(TASK))
 	touch $@
 
 VDONE := $(RUN_DIR)/vpolicy.done $(VPLAN_DONE) $(RUN_DIR)/reward.done

@@ -56,6 +56,7 @@ class ObjectLayout:
     angle: int | None = None  # its orientation's state entry (None: it has none, or the state holds none)
     centroid: tuple[float, float] = (0.0, 0.0)  # the outline's area centroid in the object frame
     size: float = 1.0  # a length of the object's size (state units): scales object-frame features
+    height: int | None = None  # its height's state entry in a 3-D scene (Block Stacking's z): judged, never a goal
 
     def __post_init__(self) -> None:
         if len(self.pose) not in (2, 3) or len(set(self.pose)) != len(self.pose):
@@ -68,6 +69,8 @@ class ObjectLayout:
             raise ValueError(f"object {self.name}: goal {self.goal} is not laid out as its pose {self.pose}")
         if self.size <= 0:
             raise ValueError(f"object {self.name}: size {self.size} must be > 0")
+        if self.height is not None and self.height in self.pose + ((self.angle,) if self.angle is not None else ()):
+            raise ValueError(f"object {self.name}: height entry {self.height} is one of its pose or angle entries")
 
     @property
     def has_angle(self) -> bool:
@@ -158,15 +161,19 @@ class TaskLayout:
     action: ActionBox
     objects: tuple[ObjectLayout, ...]
     frame: FrameLayout | None = None  # None: the task renders no frames
+    unit: str = "px"  # how reports show a length: state units times ``unit_scale``, in ``unit`` (Block Stacking: m as mm)
+    unit_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError("a task layout needs a name")
+        if not self.unit or not 0 < self.unit_scale < float("inf"):
+            raise ValueError(f"task {self.name}: unit {self.unit!r} needs a name and a positive, finite scale ({self.unit_scale})")
         names = [o.name for o in self.objects]
         if len(set(names)) != len(names):
             raise ValueError(f"task {self.name}: object names {names} repeat")
         for obj in self.objects:
-            entries = obj.pose + (() if obj.angle is None else (obj.angle,))
+            entries = obj.pose + (() if obj.angle is None else (obj.angle,)) + (() if obj.height is None else (obj.height,))
             if not all(0 <= d < self.state.dim for d in entries):
                 raise ValueError(f"object {obj.name}: entries {entries} lie outside the state's {self.state.dim}")
             if obj.angle is not None and obj.angle not in self.state.angle_dims:

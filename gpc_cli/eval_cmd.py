@@ -22,9 +22,9 @@ PlannerKind = Annotated[str, typer.Option("--planner", help="bc (the policy alon
 WorldModel = Annotated[str | None, typer.Option("--world-model", help="World-model checkpoint (gt-sim: the true simulator).")]
 K = Annotated[int | None, typer.Option("--K", "-K", help="Proposals (rank, rank-opt), random chunks (grad) or samples per iteration (cem, mppi); default 100, opt 1.")]
 M = Annotated[int | None, typer.Option("--M", "-M", help="Gradient steps (opt, rank-opt, grad) or iterations (cem, mppi); default 30 (cem, mppi: 5).")]
-Lr = Annotated[float, typer.Option("--lr", help="Adam step size on the actions (px).")]
+Lr = Annotated[float | None, typer.Option("--lr", help="Gradient planners: Adam step size on the actions, in action units (default: 1/256 of the task's action range: 2 px on the planar tasks, 1.6 mm on Block Stacking).")]
 LrDecay = Annotated[str, typer.Option("--lr-decay", help="Step size over the M steps: constant or cosine (to 0).")]
-TrustRegion = Annotated[float, typer.Option("--trust-region", help="Gradient planners: how far (px) an action may move from its proposal; 0: no limit.")]
+TrustRegion = Annotated[float, typer.Option("--trust-region", help="Gradient planners: how far (action units: px, or m on Block Stacking) an action may move from its proposal; 0: no limit.")]
 Knots = Annotated[int, typer.Option("--knots", min=0, max=MAX_COUNT, help="Gradient planners: ascend N offsets linearly interpolated over the chunk (it bends smoothly); 0: every action.")]
 KeepBest = Annotated[bool, typer.Option("--keep-best", help="Gradient planners: end at each candidate's best-scoring iterate (the proposal included), not the last.")]
 Reward = Annotated[str, typer.Option("--reward", help="registration (state futures), learned (image futures) or vlm.")]
@@ -48,7 +48,7 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace the result
 
 # What every closed-loop command takes to build its controller (received as ``planning``).
 PLANNING_OPTIONS = (
-    ("world_model", WorldModel, None), ("k", K, None), ("m", M, None), ("lr", Lr, 2.0), ("lr_decay", LrDecay, "constant"),
+    ("world_model", WorldModel, None), ("k", K, None), ("m", M, None), ("lr", Lr, None), ("lr_decay", LrDecay, "constant"),
     ("trust_region", TrustRegion, 0.0), ("keep_best", KeepBest, False), ("knots", Knots, 0), ("reward", Reward, "registration"),
     ("reward_aggregate", RewardAggregate, "final"), ("reward_checkpoint", RewardCkpt, None),
     ("vlm_base_url", VlmUrl, None), ("vlm_model", VlmModel, None), ("method", Method, None), ("steps", Steps, None),

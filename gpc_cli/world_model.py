@@ -67,7 +67,7 @@ def evaluate(
     max_windows: int = typer.Option(512, "--max-windows", min=1, max=MAX_COUNT, help="Image models: at most this many windows, evenly spread."),
     noise: str = typer.Option("frozen", "--noise", help="Image models: frozen (deterministic) or sampled initial noise."),
     sampler_steps: int | None = typer.Option(None, "--sampler-steps", min=1, max=MAX_COUNT, help="Image models: Euler steps per predicted frame (default: the checkpoint's, 3)."),
-    pose_reader: Path | None = typer.Option(None, "--pose-reader", help="Image models: read the block pose with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour."),
+    pose_reader: Path | None = typer.Option(None, "--pose-reader", help="Image models: read the objects' poses with this `gpc train reward` checkpoint (what the learned reward sees) instead of by colour; a state reader (a task scored by its own state reward) reads the whole state, heights included."),
     held_out_of: Path | None = typer.Option(None, "--held-out-of", help="Use the episodes this other checkpoint held out (among --dataset) instead: two models on one unseen set; refused where this model trained on one of them."),
     out: Path | None = typer.Option(None, "--out", "-o", help="Directory for world_model_eval.json and .md (default: the run's eval/)."),
 ) -> None:

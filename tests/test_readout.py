@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from gpc.models.world_models.eval_visual import readout_figures, visual_markdown_table
 from gpc.models.world_models.readout import ColourReadout, pose_errors
@@ -83,3 +84,48 @@ def test_figures_and_report_give_every_objects_position_ratio():
     assert f"{len(STATES)} windows where the sphere moves: position error" in md and ratio in md
     assert f"{len(STATES)} windows where the cube moves: position error" in md and "Agent visible in" in md
     assert "| cube units | cube deg | cube vertices | agent visible |" in md  # the per-step columns: the first object
+
+
+class _PixelReader(torch.nn.Module):
+    """A stand-in state reader that reads what ``_encode`` wrote: entry j is pixel (0, j)'s red value x 0.1 m / 255."""
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        return frames[:, 0, 0, :18] * 0.1
+
+
+def _encode(states: np.ndarray) -> np.ndarray:
+    """``(..., 18)`` states in [0, 0.1] m -> ``(..., 96, 96, 3)`` uint8 frames ``_PixelReader`` reads back."""
+    frames = np.zeros(states.shape[:-1] + (96, 96, 3), np.uint8)
+    frames[..., 0, :18, 0] = np.round(states / 0.1 * 255).astype(np.uint8)
+    return frames
+
+
+def test_a_state_reader_judges_a_3d_object_on_its_position_and_height_in_the_tasks_unit():
+    """Block Stacking's red cube: two windows of two predicted frames. Window 0 lifts it 51 mm (the model predicts
+    the lift 2 cm short); window 1 holds still (the model drifts 10.2 mm sideways): per-step errors, the moving window's
+    final-frame ratio, and the table in mm."""
+    from gpc.models.world_models.state_readout import StateReadout, state_readout_markdown
+    from gpc.tasks.stack import LAYOUT as STACK
+
+    last = np.zeros((2, 18))
+    last[:, 4:7] = [0.05, 0.05, 0.02]
+    true = np.repeat(last[:, None], 2, axis=1)
+    true[0, :, 6] += 0.051  # (a multiple of 0.1 / 255: encoded exactly)
+    model = true.copy()
+    model[0, :, 6] -= 0.02
+    model[1, :, 4] += 0.1 * 26 / 255  # 10.2 mm
+    readout = StateReadout(_PixelReader(), STACK, "pixels")
+    assert [q.name for q in readout.quantities] == ["red", "red height", "agent"]
+    figures = readout.figures(_encode(model), _encode(true), _encode(last), recorded=true)
+    height, planar = figures["red height"], figures["red"]
+    np.testing.assert_allclose(height["per_step"]["model"], [0.01, 0.01], atol=3e-4)  # 2 cm on one window of two
+    np.testing.assert_allclose(height["per_step"]["baseline"], [0.0255, 0.0255], atol=3e-4)
+    np.testing.assert_allclose(planar["per_step"]["model"], [0.0051, 0.0051], atol=3e-4)
+    assert height["moving_windows"] == planar["moving_windows"] == 1  # the lift: 51 mm > a quarter of the 4 cm cube
+    np.testing.assert_allclose(height["final_moving"]["ratio"], 0.02 / 0.051, atol=0.01)
+    assert planar["final_moving"]["model"] < 3e-4 and height["reader_error"] < 3e-4
+    assert figures["agent"]["per_step"]["model"] == [0.0, 0.0] and "moving_windows" not in figures["agent"]
+    lines = state_readout_markdown(figures, readout.describe(), [4, 8])
+    assert "| step (actions) | red | red height | agent |" in lines and "| 1 (4) | 5.1 / 0.0 | 10.0 / 25.5 | 0.0 / 0.0 |" in lines
+    assert any(line.startswith("red height: on the 1 windows where it moves, the last frame is off by 20.0 mm against 51.0")
+               for line in lines)

@@ -373,3 +373,31 @@ def test_two_models_meet_on_the_episodes_one_of_them_held_out(phase1, store, tmp
     unknown = cli.invoke(app, ["eval", "world-model", str(phase1.last), "--dataset", str(other), "--held-out-of",
                                str(phase1.last), "--out", str(tmp_path / "none")])
     assert unknown.exit_code != 0 and "held out no episode of the given stores" in unknown.output
+
+
+def test_a_3d_object_is_judged_on_its_height_and_reported_in_the_tasks_unit():
+    """Block Stacking's red cube lifted 2 cm, nothing else wrong: the height error is 2 cm, the planar one 0, and the
+    table shows them in mm (its state is in metres); Push-T's table keeps px."""
+    from gpc.models.world_models.eval_state import _errors, markdown_table
+    from gpc.tasks.stack import LAYOUT as STACK
+
+    true = torch.zeros(3, 4, STACK.state.dim)
+    pred = true.clone()
+    pred[..., STACK.primary.height] += 0.02
+    errors = _errors(pred, true, STACK)
+    torch.testing.assert_close(errors["object_height"], torch.full((3, 4), 0.02))
+    assert errors["object_px"].abs().max() == 0 and errors["agent_px"].abs().max() == 0
+    assert "object_height" not in _errors(torch.zeros(2, 3, LAYOUT.state.dim), torch.zeros(2, 3, LAYOUT.state.dim), LAYOUT)
+    steps = [{"step": 1, "model": {k: float(v.mean()) for k, v in errors.items()}, "baseline": {k: 0.0 for k in errors}}]
+    report = {"windows": 3, "split": "val", "episodes": 1, "history": 2, "horizon": 1, "steps": steps,
+              "mean_over_steps": steps[0], "unit": STACK.unit, "unit_scale": STACK.unit_scale}
+    table = markdown_table(report)
+    assert "| object mm | object height mm |" in table and "| 1 | 0.00 / 0.00 | 20.00 / 0.00 |" in table
+    assert "| object px |" in markdown_table({**report, "unit": "px", "unit_scale": 1.0})
+
+
+def test_an_object_height_on_a_pose_entry_is_refused():
+    from gpc.datasets.layout import ObjectLayout
+
+    with pytest.raises(ValueError, match="height entry 5 is one of its pose"):
+        ObjectLayout(name="red", pose=(4, 5), vertices=((0.0, 0.0),), height=5)

@@ -102,16 +102,25 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
         frame = layout.frame
         colour = ColourReadout.from_layout(layout) if frame is not None and frame.objects and frame.agent_colours else None
         readout: ColourReadout | LearnedPoseReadout | None = colour
+        state_readout = None
         if pose_reader is not None:
-            if colour is None:
-                raise ValueError(f"--pose-reader: task {layout.name}'s frames name no object colours to read poses beside")
-            from gpc.models.rewards.learned import RewardPredictorModule
+            from gpc.models.rewards.learned import RewardPredictorModule, StatePredictor
 
             predictor = RewardPredictorModule.load_from_checkpoint(pose_reader, task=module.config.task).predictor
-            readout = LearnedPoseReadout(colour, predictor, str(pose_reader))
+            if isinstance(predictor, StatePredictor):  # reads the whole state: judged on every object's position (and height)
+                from gpc.models.world_models.state_readout import StateReadout
+
+                state_readout = StateReadout(predictor, layout, str(pose_reader))
+            elif colour is None:
+                raise ValueError(f"--pose-reader {pose_reader}: a pose predictor, and task {layout.name}'s frames name no "
+                                 "object colours to read the agent beside it (a state reader, trained for a task scored by "
+                                 "its own state reward, reads any task)")
+            else:
+                readout = LearnedPoseReadout(colour, predictor, str(pose_reader))
         report, grid = evaluate_visual_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon,
                                                 readout=readout, stride=stride or IMAGE_STRIDE,
-                                                max_windows=max_windows, noise=noise, held_out_of=held_out_of, regions=regions)
+                                                max_windows=max_windows, noise=noise, held_out_of=held_out_of, regions=regions,
+                                                state_readout=state_readout)
         table = visual_markdown_table(report, f"Visual world model rollouts: {checkpoint}")
         interrupts.check()
         out.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,10 @@ ASCENT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlannerConfig)
 LATER_DEFAULTS = {"action_steps": None, "knots": 0}
 # The VLM settings that change its answers (not where it is served, its key, time-outs or cache), each left out at its default.
 VLM_IDENTITY = ("model", "temperature", "prompt", "frame_size", "columns", "max_tokens")
+# The gradient planners' Adam step when --lr is not given: Push-T's 2 px of its 512 px action box, as a share of the
+# task's box, so a task in metres (Block Stacking's 0.4 m box: 1.6 mm) moves its actions as far, relative to their
+# range, as Push-T does (2 px on every 512 px planar task: their figures unchanged).
+DEFAULT_LR_SHARE = 2.0 / 512
 DEFAULT_STEPS = {"cem": 5, "mppi": 5}  # M when not given: 30 for the gradient planners, 0 for those that take no steps
 DEVICES = ("cpu", "cuda")  # where the controller's networks run (--device)
 
@@ -189,7 +193,7 @@ class PlannerRecipe:
 
 
 def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | None = None, k: int | None = None,
-                m: int | None = None, lr: float = 2.0, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
+                m: int | None = None, lr: float | None = None, ascent: Mapping[str, Any] | None = None, reward: RewardSpec = RewardSpec(),
                 sampling: SamplingConfig = SamplingConfig(), goal: str = "fixed", keep_futures: bool = False,
                 task: str | None = None, policy_format: str | None = None, action_steps: int | None = None,
                 precision: str = "bf16-auto", device: str = "cpu") -> PlannerRecipe:
@@ -197,6 +201,7 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
 
     ``policy`` is a gpc checkpoint, a LeRobot policy directory or a Diffusion Policy ``.ckpt``
     (``policy_format``: detected when None); a foreign one acts in ``task`` (default: the built-in one).
+    ``lr``: the gradient planners' Adam step in action units (None: ``DEFAULT_LR_SHARE`` of the task's action range).
     ``ascent``: the gradient planners' guards (``PlannerConfig``'s ``lr_decay``, ``trust_region``, ``keep_best``,
     ``knots``). ``precision``: the world model's rollouts (``bf16-auto``, ``32-true``, ``bf16-mixed``).
     ``device``: where the networks run (``cpu``, ``cuda``); checked here on the CPU when this machine has no GPU
@@ -244,7 +249,8 @@ def make_recipe(policy: str | Path, planner: str = BC, *, world_model: str | Non
     box, registered = chosen.layout.action, planner_kind(kind)
     steps = DEFAULT_STEPS.get(kind, 30) if registered.iterates else 0
     config = PlannerConfig(kind=kind, num_proposals=k if k is not None else (1 if registered.single else 100),
-                           opt_steps=m if m is not None else steps, lr=lr, action_low=box.low, action_high=box.high,
+                           opt_steps=m if m is not None else steps,
+                           lr=lr if lr is not None else DEFAULT_LR_SHARE * (box.high - box.low), action_low=box.low, action_high=box.high,
                            keep_futures=keep_futures and registered.load == WORLD_MODEL,  # futures to draw: a model's
                            action_steps=action_steps, **(ascent or {}))
 

@@ -3,9 +3,10 @@
 Each held-out window gives a history of H recorded states and the next T recorded actions;
 the model rolls them out open-loop and every predicted state is compared with the recorded
 one. Beside it stands the trivial "nothing moves" baseline that copies the last history
-state forward. Errors: object position (px), object angle (deg, wrapped), agent position
-(px) and the registration distance (px: mean vertex distance between predicted and recorded
-pose, what the planner's reward reads), where the task's layout says they sit.
+state forward. Errors: object position, object height (3-D tasks), object angle (deg, wrapped), agent
+position and the registration distance (mean vertex distance between predicted and recorded pose, what
+the planner's reward reads), where the task's layout says they sit; lengths in state units, shown in the
+layout's unit (px, or Block Stacking's metres as mm). The metric keys keep their ``_px`` names.
 """
 
 from __future__ import annotations
@@ -27,13 +28,18 @@ from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import ACTION_KEY, STATE_KEY, wrap_angle
 
 SPLITS = ("val", "all")
-METRICS = {"object_px": "object px", "object_deg": "object deg", "agent_px": "agent px", "registration_px": "vertices px"}
+# Metric -> its column ({unit}: the layout's length unit; a metric without it is no length).
+METRICS = {"object_px": "object {unit}", "object_height": "object height {unit}", "object_deg": "object deg",
+           "agent_px": "agent {unit}", "registration_px": "vertices {unit}"}
 
 
 def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
     """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors (an object metric: the mean over the task's objects)."""
     out = {"object_px": torch.stack([(pred[..., list(o.pose[:2])] - true[..., list(o.pose[:2])]).norm(dim=-1)
                                      for o in layout.objects]).mean(dim=0)} if layout.objects else {}
+    heights = [o.height for o in layout.objects if o.height is not None]
+    if heights:
+        out["object_height"] = torch.stack([(pred[..., z] - true[..., z]).abs() for z in heights]).mean(dim=0)
     turning = [o.angle for o in layout.objects if o.angle is not None]
     if turning:
         out["object_deg"] = torch.stack([wrap_angle(pred[..., a] - true[..., a]).abs() for a in turning]).mean(dim=0) * (180.0 / math.pi)
@@ -113,6 +119,7 @@ def evaluate_rollouts(
         "split": held_out_of.label if held_out_of else split, "datasets": [str(p) for p in datasets],
         "episodes": int(len(chosen)), "windows": int(n),
         "history": h, "horizon": t, "config": module.config.to_dict(), "steps": steps,
+        "unit": layout.unit, "unit_scale": layout.unit_scale,
         "mean_over_steps": {name: {m: float(np.mean(v)) for m, v in means[name].items()} for name in means},
     }
 
@@ -126,14 +133,16 @@ def episodes_phrase(report: dict[str, Any]) -> str:
 def markdown_table(report: dict[str, Any], title: str = "World model rollouts") -> str:
     """One row per horizon step: each metric as ``model / baseline`` (baseline: nothing moves)."""
     metrics = [m for m in METRICS if m in report["steps"][0]["model"]]
+    unit, scale = report.get("unit", "px"), report.get("unit_scale", 1.0)  # (reports before units: px)
+    scales = {m: scale if "{unit}" in METRICS[m] else 1.0 for m in metrics}
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {episodes_phrase(report)}; history {report['history']}, "
         f"horizon {report['horizon']}. Each cell: model / nothing-moves baseline (mean error).", "",
-        "| step | " + " | ".join(METRICS[m] for m in metrics) + " |",
+        "| step | " + " | ".join(METRICS[m].format(unit=unit) for m in metrics) + " |",
         "|---|" + "---|" * len(metrics),
     ]
     for row in report["steps"] + [{"step": "mean", **report["mean_over_steps"]}]:
-        cells = [f"{row['model'][m]:.2f} / {row['baseline'][m]:.2f}" for m in metrics]
+        cells = [f"{row['model'][m] * scales[m]:.2f} / {row['baseline'][m] * scales[m]:.2f}" for m in metrics]
         lines.append(f"| {row['step']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -29,6 +29,8 @@ from gpc.models.world_models.eval_state import episodes_phrase, held_out_windows
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.readout import ColourReadout, LearnedPoseReadout, pose_errors
 from gpc.models.world_models.regions import RegionReadout, regions_markdown
+from gpc.models.world_models.state import STATE_KEY
+from gpc.models.world_models.state_readout import StateReadout, state_readout_markdown
 from gpc.models.world_models.visual import ACTION_KEY, VisualDynamics
 
 __all__ = ["ColourReadout", "LearnedPoseReadout", "evaluate_visual_rollouts", "frame_grid", "readout_figures", "visual_markdown_table"]
@@ -53,19 +55,19 @@ def evaluate_visual_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
     horizon: int | None = None, readout: ColourReadout | LearnedPoseReadout | None = None, stride: int = 8, max_windows: int | None = 512,
     batch_size: int = 32, noise: str = "frozen", grid_windows: int = 6, seed: int = 0, held_out_of: HeldOutOf | None = None,
-    regions: RegionReadout | None = None,
+    regions: RegionReadout | None = None, state_readout: StateReadout | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """Per-step SSIM / PSNR (and, with ``readout``, object pose errors and agent visibility; with ``regions``, each
-    region's wrong pixels) of the model and of the nothing-moves baseline; returns (report, PNG grid as ``(H, W, 3)``
-    uint8 RGB).
+    region's wrong pixels; with ``state_readout``, the errors of the states a learned reader reads) of the model and
+    of the nothing-moves baseline; returns (report, PNG grid as ``(H, W, 3)`` uint8 RGB).
 
     Windows as ``held_out_windows`` picks them (every ``stride`` steps, at most ``max_windows``; ``held_out_of``).
     """
     dyn, config = module.dynamics, module.config
     assert isinstance(dyn, VisualDynamics) and isinstance(config, VisualWorldModelConfig)  # a visual world model
     c = config.dynamics
-    arrays, chosen, idx, t = held_out_windows(module, datasets, (IMAGE_KEY, ACTION_KEY), split, episodes, horizon,
-                                              stride, max_windows, held_out_of)
+    keys = (IMAGE_KEY, ACTION_KEY) + ((STATE_KEY,) if state_readout is not None else ())
+    arrays, chosen, idx, t = held_out_windows(module, datasets, keys, split, episodes, horizon, stride, max_windows, held_out_of)
     n0, f = module.n_obs_steps, c.frameskip
     steps = t // f
     future = n0 - 1 + f * np.arange(1, steps + 1)  # window positions of the predicted frames
@@ -103,6 +105,10 @@ def evaluate_visual_rollouts(
     if regions is not None:
         report["regions"] = regions.figures(model, true, last)
         report["regions_config"] = regions.describe()
+    if state_readout is not None:
+        states = arrays.data[STATE_KEY][idx[:, future]].astype(np.float64)  # the recorded states behind ``true``
+        report["state_readout"] = state_readout.figures(model, true, last, states)
+        report["state_readout_config"] = state_readout.describe()
     return report, frame_grid(last[:grid_windows], true[:grid_windows], model[:grid_windows])
 
 
@@ -174,11 +180,14 @@ def frame_grid(last: np.ndarray, true: np.ndarray, pred: np.ndarray, scale: int 
 
 def visual_markdown_table(report: dict[str, Any], title: str = "Visual world model rollouts") -> str:
     """One row per predicted frame: SSIM and PSNR (and the first object's pose errors, agent visibility) as model /
-    baseline; then each object's errors on the final frame of the windows where it moves; then each region's."""
-    table = _readout_table(report, title)
-    if "regions" not in report:
-        return table
-    return table + "\n".join(regions_markdown(report["regions"], [row["actions"] for row in report["steps"]])) + "\n"
+    baseline; then each object's errors on the final frame of the windows where it moves; then each region's, then
+    the state reader's."""
+    table, steps = _readout_table(report, title), [row["actions"] for row in report["steps"]]
+    if "regions" in report:
+        table += "\n".join(regions_markdown(report["regions"], steps)) + "\n"
+    if "state_readout" in report:
+        table += "\n".join(state_readout_markdown(report["state_readout"], report["state_readout_config"], steps)) + "\n"
+    return table
 
 
 def _readout_table(report: dict[str, Any], title: str) -> str:

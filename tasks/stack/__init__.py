@@ -37,9 +37,10 @@ LAYOUT = TaskLayout(
     name="stack",
     state=StateLayout(dim=scene.STATE_DIM, agent_xy=(0, 1, 2, 3), action_targets=(0, 1, 2, 3)),
     action=ActionBox(dim=4, low=-0.2, high=0.2),  # holds every entry's range (scene.ACTION_LOW/HIGH); the env clips each
-    objects=(ObjectLayout(name="red", pose=(4, 5), size=scene.CUBE_SIDE,
+    objects=(ObjectLayout(name="red", pose=(4, 5), size=scene.CUBE_SIDE, height=6,
                           vertices=((-_HALF, -_HALF), (_HALF, -_HALF), (_HALF, _HALF), (-_HALF, _HALF))),),
     frame=FrameLayout(extent=(-0.2, 0.2), marker_size=0.01),  # a perspective camera: no planar extent; for action maps only
+    unit="mm", unit_scale=1000.0,  # metres, reported as mm
 )
 
 # The paper's Table III row for this task (50 seeds, K=100, learned reward), keyed by gpc's controller labels.
