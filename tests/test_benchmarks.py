@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks import bench_planners, bench_policy, bench_vlm, bench_world_model, common
+from benchmarks import bench_planners, bench_policy, bench_tasks, bench_vlm, bench_world_model, common
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -41,5 +41,7 @@ def test_every_benchmark_runs_small_and_writes_its_table(tmp_path):
     bench_planners.run(doc, settings=[s for s in bench_planners.SETTINGS if s[0] in ("rank K=10", "cem 100x5", "gt-sim K=100")],
                        samplers=(2,), profile="tiny")
     bench_vlm.run(doc, decisions=1)
+    bench_tasks.run(doc, tasks=("draw",))
+    assert [r.split("|")[4].strip() for r in table(doc, "tasks")][:2] == ["state step + reward", "render 96x96 (env.frame)"]
     assert len(table(doc, "policy")) == 1 and len(table(doc, "world_model")) == 1
     assert len(table(doc, "planners")) == 3 and len(table(doc, "vlm")) == 3
