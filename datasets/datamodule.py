@@ -28,6 +28,7 @@ class DataConfig:
     val_ratio: float = 0.05
     seed: int = 42
     val_episodes: tuple[int, ...] | None = None  # these episodes held out (a run started from a checkpoint keeps its own)
+    state_spans: tuple[tuple[int, float, float], ...] = ()  # ranges the "state" key's normaliser spans at least (StateLayout.spans)
     batch_size: int = 256
     num_workers: int = 0
 
@@ -69,7 +70,7 @@ class EpisodeDataModule(L.LightningDataModule):
             mask[start : int(self.arrays.episode_ends[i])] = True
         self.normalizer = MinMaxNormalizer.fit(
             {k: v[mask] if k not in IMAGE_KEYS else v[:1] for k, v in self.arrays.data.items()},
-            image_keys=IMAGE_KEYS,
+            image_keys=IMAGE_KEYS, spans={"state": config.state_spans},
         )
         obs_steps = config.obs_steps_override or config.n_obs_steps
         self.steps = {k: obs_steps for k in config.obs_keys}

@@ -9,6 +9,7 @@ and the harness hands it to every component, so a new task needs no line changed
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -29,12 +30,21 @@ class StateLayout:
     agent_xy: tuple[int, ...] = ()  # the agent's position entries (leading), () for none
     angle_dims: tuple[int, ...] = ()  # entries that are angles (wrapped, fed as cos and sin)
     action_targets: tuple[int, ...] = ()  # entries an action is a target for (fed as action - state)
+    # (entry, low, high): a range the policy's normaliser spans at least, whatever its demonstrations cover. For a
+    # feature the demonstrations barely vary but a policy's own mistakes move far (the ink a drawing puts off its
+    # outline: at most 0.017 in the expert's data, 0.1 after one bad chunk), a span fitted to the data alone would
+    # put the policy's inputs tens of units outside [-1, 1].
+    spans: tuple[tuple[int, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.dim < 1:
             raise ValueError(f"state dim {self.dim}: must be at least 1")
         for name in ("agent_xy", "angle_dims", "action_targets"):
             _distinct_in_range(name, getattr(self, name), self.dim)
+        _distinct_in_range("spans", tuple(int(i) for i, _, _ in self.spans), self.dim)
+        for i, lo, hi in self.spans:
+            if not -math.inf < lo < hi < math.inf:
+                raise ValueError(f"span of state entry {i}: ({lo}, {hi}) must be finite with low below high")
         if self.agent_xy != tuple(range(len(self.agent_xy))):
             raise ValueError(f"agent_xy {self.agent_xy}: the agent's entries must lead the state vector")
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import numpy as np
 import torch
 from torch import nn
@@ -22,7 +24,10 @@ class MinMaxNormalizer(nn.Module):
         self.offsets = nn.ParameterDict()
 
     @classmethod
-    def fit(cls, data: dict[str, np.ndarray], image_keys: tuple[str, ...] = ()) -> MinMaxNormalizer:
+    def fit(cls, data: dict[str, np.ndarray], image_keys: tuple[str, ...] = (),
+            spans: Mapping[str, Sequence[tuple[int, float, float]]] | None = None) -> MinMaxNormalizer:
+        """``spans``: per key, ``(feature, low, high)`` ranges each feature's span covers at least (a task's declared
+        range of a feature its data barely varies, ``StateLayout.spans``)."""
         norm = cls()
         for key, value in data.items():
             if key in image_keys:
@@ -30,6 +35,8 @@ class MinMaxNormalizer(nn.Module):
             else:
                 value = np.asarray(value, dtype=np.float64)
                 lo, hi = value.min(axis=0), value.max(axis=0)
+                for i, low, high in (spans or {}).get(key, ()):
+                    lo[i], hi[i] = min(lo[i], low), max(hi[i], high)
             norm.add(key, lo, hi)
         return norm
 

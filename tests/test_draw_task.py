@@ -6,6 +6,7 @@ tests/test_reproduce_draw.py. These check what the rest of gpc sees through ``gp
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -74,3 +75,32 @@ def test_the_ceiling_replays_the_true_canvas():
     predicted = task.simulator().rollout(torch.as_tensor(obs[task.sim_key])[None, None], torch.as_tensor(actions)[None])
     true = [env.step(action)[0] for action in actions]
     np.testing.assert_allclose(predicted[0].numpy(), np.array(true), rtol=1e-6, atol=1e-4)
+
+
+def test_the_policys_normaliser_spans_the_ink_off_the_outline_its_demonstrations_barely_make(tmp_path):
+    """Real expert episodes on disk: their off-outline ink stays under 0.02, so a span fitted to them alone would put
+    one bad chunk's 0.1 at about +10; the task's declared span [0, 1] keeps it near -0.8, and the rest stays fitted."""
+    from gpc.datasets.datamodule import EpisodeDataModule
+    from gpc.datasets.store import EpisodeStore
+    from gpc.models.policy.config import policy_profile
+    from gpc.models.policy.module import PolicyModule
+    from gpc.models.training.config import RunConfig
+
+    task = get_task("draw")
+    store = EpisodeStore.create(tmp_path / "expert.zarr", {"task": "draw"})
+    for seed in range(100000, 100006):
+        data, _ = task.record("expert", seed, "fixed", False, task.max_episode_steps)
+        store.append_episode(data, seed=seed)
+    off = geometry.N_SUMMARY + 7
+    config = policy_profile("tiny", "state", task.layout).config
+    assert config.encoder.state_spans == ((off, 0.0, 1.0),)
+    data = EpisodeDataModule(PolicyModule.data_config(config, (str(tmp_path / "expert.zarr"),), RunConfig(tmp_path, max_steps=1), (0, 0.2)))
+    states = data.arrays.data["state"]
+    assert 0 < states[:, off].max() < 0.02
+    norm = data.normalizer
+    bad = torch.as_tensor(states[-1]).float().clone()
+    bad[off] = 0.1
+    assert norm.normalize("state", bad)[off] == pytest.approx(-0.8, abs=1e-5)
+    fitted = EpisodeDataModule(dataclasses.replace(data.config, state_spans=())).normalizer
+    assert fitted.normalize("state", bad)[off] > 9  # what the policy saw before the span
+    torch.testing.assert_close(norm.normalize("state", bad)[:off], fitted.normalize("state", bad)[:off])

@@ -60,3 +60,18 @@ def test_datamodule_on_a_store(tmp_path):
         EpisodeDataModule(DataConfig(paths=(str(path),), horizon=64, n_obs_steps=2, n_action_steps=8))
     with pytest.raises(DataError, match="missing key data/img"):
         EpisodeDataModule(DataConfig(paths=(str(path),), obs_keys=("img",)))
+
+
+def test_a_declared_span_widens_only_its_feature_and_a_bad_span_is_refused():
+    from gpc.datasets.layout import StateLayout
+
+    data = {"state": np.array([[0.0, 10.0, 0.001], [2.0, 30.0, 0.003]])}
+    norm = MinMaxNormalizer.fit(data, spans={"state": ((2, 0.0, 1.0),)})
+    y = norm.normalize("state", torch.tensor([[1.0, 20.0, 0.5]]))
+    torch.testing.assert_close(y, torch.tensor([[0.0, 0.0, 0.0]]))  # entries 0, 1 fitted to the data; 2 to [0, 1]
+    wide = MinMaxNormalizer.fit(data, spans={"state": ((0, 0.5, 1.0),)})  # a span inside the data's range narrows nothing
+    torch.testing.assert_close(wide.normalize("state", torch.tensor([[2.0, 10.0, 0.003]])), torch.tensor([[1.0, -1.0, 1.0]]))
+    with pytest.raises(ValueError, match="spans"):
+        StateLayout(dim=3, spans=((3, 0.0, 1.0),))
+    with pytest.raises(ValueError, match="span of state entry 1"):
+        StateLayout(dim=3, spans=((1, 1.0, 1.0),))

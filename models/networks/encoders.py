@@ -60,6 +60,7 @@ class EncoderConfig:
     keypoint_key: str = "keypoint"  # data key the keypoints type reads its object points from
     image_norm: str = "group"  # group (gpc, Diffusion Policy) or batch (LeRobot's current default) in the ResNet
     image_feature_relu: bool = False  # a ReLU after the image features' linear map (LeRobot's encoder has one)
+    state_spans: tuple[tuple[int, float, float], ...] = ()  # the task's StateLayout.spans: the state normaliser spans them
 
     def __post_init__(self) -> None:
         if self.obs_type not in OBS_KEYS:

@@ -91,7 +91,8 @@ def policy_profile(name: str, obs_type: str, layout: TaskLayout, goal: str = "fi
         if not layout.state.agent_xy:
             raise ValueError(f"obs {obs_type!r} reads the agent's position; task {layout.name} has none in its state")
         encoder = dataclasses.replace(encoder, agent_dims=len(layout.state.agent_xy))
-    encoder = dataclasses.replace(encoder, goal=goal == "random" or layout.goal is None)  # a goal drawn per episode is read
+    encoder = dataclasses.replace(encoder, goal=goal == "random" or layout.goal is None,  # a goal drawn per episode is read
+                                  state_spans=layout.state.spans)
     optim = optim if lr is None else dataclasses.replace(optim, lr=lr)
     policy = PolicyConfig(task=layout.name, action_dim=layout.action.dim, encoder=encoder, unet=unet, sampler=sampler,
                           optim=optim)
