@@ -95,7 +95,7 @@ def run_vision_baselines_smoke(vargs: list[str], tmp_path: Path, task: str) -> N
 def run_vision_smoke(args: list[str], tmp_path: Path, task: str) -> tuple[Path, Path, Path]:
     """Run a task's vision smoke pipeline (``args``: the make command, RUN_DIR and RESULTS under ``tmp_path``) and check
     its table and its chain of models; returns (the planners' results, the shared BC and ceiling results, the runs)."""
-    vision = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    vision = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert vision.returncode == 0, vision.stdout[-2000:] + vision.stderr[-2000:]
     # the default model (VWM_PLAN=onpolicy) has its own rows; BC and the ceiling read none, so every model's table shares them
     vres, shared, runs = tmp_path / "results-vision-onpolicy", tmp_path / "results-vision", tmp_path / "runs"
