@@ -135,8 +135,16 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
         for value, option in ((pose_reader, "--pose-reader"), (sampler_steps, "--sampler-steps")):
             if value is not None:
                 raise ValueError(f"{option} applies to image world models only")
+        from gpc.models.rewards.registration import RewardConfig
+        from gpc.models.rewards.state import state_reward
+
+        task = get_task(module.config.task)
+        # the task's planning reward, judged on each predicted state; registration against a goal drawn per episode
+        # would need the stores' goals, so that reward is left out there
+        per_episode_goal = task.state_reward == "registration" and layout.goal is None
+        reward = None if per_episode_goal else state_reward(task.state_reward, layout, RewardConfig(aggregate="final"))
         report = evaluate_rollouts(module, datasets, split=split, episodes=episodes, horizon=horizon, layout=layout,
-                                   stride=stride or STATE_STRIDE, held_out_of=held_out_of)
+                                   stride=stride or STATE_STRIDE, held_out_of=held_out_of, reward=reward)
         table = markdown_table(report, f"World model rollouts: {checkpoint}")
     report["checkpoint"] = str(checkpoint)
     interrupts.check()

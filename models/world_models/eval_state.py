@@ -7,6 +7,11 @@ state forward. Errors: object position, object height (3-D tasks), object angle 
 position and the registration distance (mean vertex distance between predicted and recorded pose, what
 the planner's reward reads), where the task's layout says they sit; lengths in state units, shown in the
 layout's unit (px, or Block Stacking's metres as mm). The metric keys keep their ``_px`` names.
+
+Given the task's planning reward, each step also reports that reward's error on the predicted state, and the last
+step the rank correlation across windows of the reward's predicted and recorded *change* over the horizon: what
+ranking chunks needs, and the only figure for a task whose state is no pose (Triangle Drawing's ink), which
+"nothing moves" cannot score (its change is 0 everywhere).
 """
 
 from __future__ import annotations
@@ -30,7 +35,13 @@ from gpc.models.world_models.state import ACTION_KEY, STATE_KEY, wrap_angle
 SPLITS = ("val", "all")
 # Metric -> its column ({unit}: the layout's length unit; a metric without it is no length).
 METRICS = {"object_px": "object {unit}", "object_height": "object height {unit}", "object_deg": "object deg",
-           "agent_px": "agent {unit}", "registration_px": "vertices {unit}"}
+           "agent_px": "agent {unit}", "registration_px": "vertices {unit}", "reward": "reward"}
+
+
+def per_step_reward(reward: Any, states: torch.Tensor) -> torch.Tensor:
+    """``(N, T, D)`` states -> ``(N, T)``: the task's reward (built with ``aggregate="final"``) on each state alone."""
+    n, t, d = states.shape
+    return reward(states.reshape(n * t, 1, d)).reshape(n, t)
 
 
 def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
@@ -49,6 +60,14 @@ def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[
     if layout.objects:  # a task without objects (a drawing) has no outline to register
         out["registration_px"] = layout_registration(pred, true, layout)
     return out
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float | None:
+    """Rank correlation of two samples (ties by order), or None where either is constant."""
+    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return None
+    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
+    return float(np.corrcoef(ra, rb)[0, 1])
 
 
 def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
@@ -92,11 +111,12 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
 def evaluate_rollouts(
     module: WorldModelModule, datasets: Sequence[str | os.PathLike], split: str = "val", episodes: int | None = None,
     horizon: int | None = None, layout: TaskLayout | None = None, batch_size: int = 4096, stride: int = 1,
-    held_out_of: HeldOutOf | None = None,
+    held_out_of: HeldOutOf | None = None, reward: Any = None,
 ) -> dict[str, Any]:
     """Per-step mean errors of the state model and of the "nothing moves" baseline on held-out
     windows (see ``held_out_windows`` for ``split``, ``episodes``, ``stride``, ``held_out_of``); ``layout``: the
-    task's, for where the object and the agent sit and the object's outline."""
+    task's, for where the object and the agent sit and the object's outline; ``reward``: the task's planning
+    reward (``aggregate="final"``, needing no per-episode goal), judged too."""
     if layout is None:
         raise ValueError("evaluate_rollouts needs the task's layout (gpc.tasks.get_task(name).layout)")
     arrays, chosen, idx, t = held_out_windows(module, datasets, (STATE_KEY, ACTION_KEY), split, episodes, horizon, stride,
@@ -105,14 +125,28 @@ def evaluate_rollouts(
     states = torch.from_numpy(arrays.data[STATE_KEY][idx]).float()
     actions = torch.from_numpy(arrays.data[ACTION_KEY][idx[:, h - 1 : h - 1 + t]]).float()
     sums: dict[str, dict[str, torch.Tensor]] = {"model": {}, "baseline": {}}
+    changes: list[tuple[torch.Tensor, torch.Tensor]] = []  # (predicted, recorded) reward change over the horizon
     for lo in range(0, len(idx), batch_size):
         hist, acts, true = states[lo : lo + batch_size, :h], actions[lo : lo + batch_size], states[lo : lo + batch_size, h:]
         pred = module.rollout(hist, acts).cpu()
         still = hist[:, -1:].expand_as(true)
+        if reward is not None:
+            now, true_r = per_step_reward(reward, hist[:, -1:])[:, 0], per_step_reward(reward, true)
         for name, guess in (("model", pred), ("baseline", still)):
-            for metric, err in _errors(guess, true, layout).items():
+            errors = _errors(guess, true, layout)
+            if reward is not None:
+                guess_r = per_step_reward(reward, guess)
+                errors["reward"] = (guess_r - true_r).abs()
+                if name == "model":
+                    changes.append((guess_r[:, -1] - now, true_r[:, -1] - now))
+            for metric, err in errors.items():
                 sums[name][metric] = sums[name].get(metric, 0.0) + err.double().sum(dim=0)
     n = len(idx)
+    ranking = None
+    if changes:
+        predicted, recorded = (torch.cat(c).double().numpy() for c in zip(*changes, strict=True))
+        ranking = {"spearman": spearman(predicted, recorded), "predicted_std": float(predicted.std()),
+                   "recorded_std": float(recorded.std())}
     means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}
     steps = [{"step": i + 1, **{name: {m: means[name][m][i] for m in means[name]} for name in means}} for i in range(t)]
     return {
@@ -121,6 +155,7 @@ def evaluate_rollouts(
         "history": h, "horizon": t, "config": module.config.to_dict(), "steps": steps,
         "unit": layout.unit, "unit_scale": layout.unit_scale,
         "mean_over_steps": {name: {m: float(np.mean(v)) for m, v in means[name].items()} for name in means},
+        "reward_change": ranking,
     }
 
 
@@ -145,4 +180,9 @@ def markdown_table(report: dict[str, Any], title: str = "World model rollouts") 
     for row in report["steps"] + [{"step": "mean", **report["mean_over_steps"]}]:
         cells = [f"{row['model'][m] * scales[m]:.2f} / {row['baseline'][m] * scales[m]:.2f}" for m in metrics]
         lines.append(f"| {row['step']} | " + " | ".join(cells) + " |")
+    change = report.get("reward_change")
+    if change and change["spearman"] is not None:
+        lines += ["", f"The reward's change over the {report['horizon']} steps, predicted against recorded, across windows: "
+                  f"Spearman {change['spearman']:.3f}; spread (std) {change['predicted_std']:.4f} predicted, "
+                  f"{change['recorded_std']:.4f} recorded."]
     return "\n".join(lines) + "\n"
