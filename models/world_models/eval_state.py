@@ -170,6 +170,7 @@ def markdown_table(report: dict[str, Any], title: str = "World model rollouts") 
     metrics = [m for m in METRICS if m in report["steps"][0]["model"]]
     unit, scale = report.get("unit", "px"), report.get("unit_scale", 1.0)  # (reports before units: px)
     scales = {m: scale if "{unit}" in METRICS[m] else 1.0 for m in metrics}
+    digits = {m: 3 if m == "reward" else 2 for m in metrics}  # a reward in [0, 1] (or so) needs a third digit
     lines = [
         f"## {title}", "",
         f"{report['windows']} windows from {episodes_phrase(report)}; history {report['history']}, "
@@ -178,7 +179,7 @@ def markdown_table(report: dict[str, Any], title: str = "World model rollouts") 
         "|---|" + "---|" * len(metrics),
     ]
     for row in report["steps"] + [{"step": "mean", **report["mean_over_steps"]}]:
-        cells = [f"{row['model'][m] * scales[m]:.2f} / {row['baseline'][m] * scales[m]:.2f}" for m in metrics]
+        cells = [f"{row['model'][m] * scales[m]:.{digits[m]}f} / {row['baseline'][m] * scales[m]:.{digits[m]}f}" for m in metrics]
         lines.append(f"| {row['step']} | " + " | ".join(cells) + " |")
     change = report.get("reward_change")
     if change and change["spearman"] is not None:
