@@ -149,6 +149,16 @@ def test_explorer_touches_and_knocks_over() -> None:
     assert result["gripper_red"] > 0 and result["gripper_blue"] > 0 and result["red_blue"] > 0
 
 
+def test_quaternions_are_continuous_through_tumbles() -> None:
+    """A cube's quaternion moves smoothly while it turns over (no sign flip as qw crosses 0) and is a unit one."""
+    data, _ = record_episode(ExplorePolicy(), 5, RecordConfig(images=False))
+    quats = data["state"][:, np.r_[geometry.RED_QUAT, geometry.BLUE_QUAT]].reshape(-1, 2, 4)
+    assert (quats[..., 0] < 0).any() and (quats[..., 0] > 0).any()  # turned past qw = 0 and back
+    # a sign flip where qw crosses 0 moves some entry by at least 2 / sqrt(3); a fast tumble by about 0.6
+    assert np.abs(np.diff(quats, axis=0)).max() < 1.0
+    np.testing.assert_allclose(np.linalg.norm(quats, axis=-1), 1.0, atol=1e-5)
+
+
 def test_own_renderer_draws_cubes_where_they_are() -> None:
     s = initial_scene(4)
     frame = draw_state(s, 96)
