@@ -145,7 +145,8 @@ def test_same_seed_same_episode_bytes() -> None:
     config = RecordConfig(max_steps=40)
     a, sa = record_episode(SwapExpert(), 100004, config)
     b, sb = record_episode(SwapExpert(), 100004, config)
-    assert sorted(a) == ["action", "goal", "img", "keypoint", "n_contacts", "state"] and sa == sb
+    assert sorted(a) == ["action", "goal", "goal_keypoint", "img", "keypoint", "n_contacts", "state"] and sa == sb
+    np.testing.assert_array_equal(a["goal_keypoint"].reshape(-1, 4), a["goal"])  # the targets, as points
     for key in a:
         assert a[key].tobytes() == b[key].tobytes(), key
     assert a["keypoint"].shape == (40, 6, 2) and a["goal"].shape == (40, 4) and a["n_contacts"].shape == (40, 1)

@@ -70,7 +70,7 @@ def env_params(goal: str, max_steps: int) -> dict[str, Any]:
 
 
 def record_keys(images: bool, goal: str) -> list[str]:
-    return sorted(["action", "goal", "keypoint", "n_contacts", "state"] + (["img"] if images else []))
+    return sorted(["action", "goal", "goal_keypoint", "keypoint", "n_contacts", "state"] + (["img"] if images else []))
 
 
 def render_state(state: np.ndarray, goal: np.ndarray | None = None, size: int = 96) -> np.ndarray:
@@ -107,7 +107,7 @@ TASK = Task(
     state_reward="registration",  # the mean of the two objects' distances to their targets (positions only)
     info_metrics=("coverage",),
     draw_plan=draw_plan,
-    row_shapes={"keypoint": (geometry.N_KEYPOINTS, 2), "n_contacts": (1,)},
+    row_shapes={"keypoint": (geometry.N_KEYPOINTS, 2), "goal_keypoint": (2, 2), "n_contacts": (1,)},
     references=PAPER,
     fps=CONTROL_HZ,
 )
