@@ -3,7 +3,8 @@
 Each step stores what was observed before acting: ``state`` (7), ``goal`` (4: the targets, every step, since they
 differ per seed), ``keypoint`` (6x2: ``geometry.keypoints``), ``goal_keypoint`` (2x2: the cube's and the
 sphere's targets as points, which a keypoint policy reads; the cube's orientation is no part of the goal), ``img``
-(96x96x3 uint8), the ``action``, and ``n_contacts`` (1: contacts per tick, agent-object and object-object together) of the step that led to it.
+(96x96x3 uint8), the ``action``, and ``n_contacts`` (1: contacts per tick, agent-object and object-object together)
+of the step that led to it.
 """
 
 from __future__ import annotations
