@@ -162,3 +162,26 @@ def test_backend_and_device_options_are_checked_before_any_work(tiny_pusht, tmp_
     # a GPU run is another run (its numbers differ): the device is part of the identity, left out on the CPU
     recipe = make_recipe(tiny_pusht["policy"], "rank", world_model=str(tiny_pusht["wm"]), k=3, device="cuda")
     assert recipe.summary()["device"] == "cuda" and "device" not in dataclasses.replace(recipe, device="cpu").summary()
+
+
+def test_a_cluster_started_here_runs_more_workers_than_cores_and_a_short_one_refuses(tmp_path):
+    """gpc's own cluster offers what the workers reserve (Ray would otherwise wait for the missing ones without end);
+    a cluster that offers less (no GPU here for --worker-gpus 1) is refused in one line, before any episode."""
+    import subprocess
+
+    gpc = Path(sys.executable).parent / "gpc"
+    workers = (os.cpu_count() or 1) + 1
+    args = [str(gpc), "collect", "--task", "draw", "--episodes", str(workers), "--no-images", "--backend", "ray"]
+    done = subprocess.run([*args, "--workers", str(workers), "--out", str(tmp_path / "many.zarr")], capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert len(EpisodeStore.open(tmp_path / "many.zarr").episode_ends) == workers
+    import torch
+
+    if not torch.cuda.is_available():
+        short = subprocess.run([*args, "--workers", "2", "--worker-gpus", "1", "--out", str(tmp_path / "gpu.zarr")],
+                               capture_output=True, text=True, timeout=300)
+        assert short.returncode == 2 and short.stderr.strip().splitlines() == [
+            "gpc: error: --workers 2 x --worker-gpus 1 need 2 GPUs; this machine's cluster has 0: give fewer workers or a "
+            "smaller share each"], short.stderr[-2000:]
+        assert not (tmp_path / "gpu.zarr").exists()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 import os
 import shutil
 import tarfile
@@ -56,8 +57,12 @@ def require() -> Any:
     return ray
 
 
-def _connect(options: RayOptions) -> bool:
-    """Join the cluster (an existing connection is kept); returns whether this call started it."""
+def _connect(options: RayOptions, workers: int = 1) -> bool:
+    """Join the cluster (an existing connection is kept); returns whether this call started it.
+
+    A cluster started here offers at least what ``workers`` reserve (``--workers 4`` on 2 cores runs four workers, as
+    the local backend's four processes would); a cluster that offers less refuses in one line, where Ray itself would
+    wait for the missing workers without end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # nothing is reported anywhere
     if options.address is None:  # read when ray is first imported: the local cluster's servers bind 127.0.0.1 only
         os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
@@ -67,11 +72,18 @@ def _connect(options: RayOptions) -> bool:
     common = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
     try:
         if options.address is None:
-            ray.init(**common)
+            ray.init(num_cpus=max(os.cpu_count() or 1, math.ceil(workers * options.cpus)), **common)
         else:
             ray.init(address=options.address, **common)
     except ConnectionError as exc:
         raise OSError(f"--ray-address {options.address}: no Ray cluster answers there ({str(exc).splitlines()[0]})") from None
+    offered = ray.cluster_resources()
+    for what, each in (("CPU", options.cpus), ("GPU", options.gpus)):
+        if workers * each > offered.get(what, 0.0):
+            ray.shutdown()
+            where = "this machine's cluster" if options.address is None else f"the cluster at {options.address}"
+            raise ValueError(f"--workers {workers} x --worker-{what.lower()}s {each:g} need {workers * each:g} {what}s; "
+                             f"{where} has {offered.get(what, 0.0):g}: give fewer workers or a smaller share each")
     return True
 
 
@@ -238,7 +250,7 @@ def _units(factory: Any, threads: int, options: RayOptions, workers: int, method
     """Start or join the cluster, run ``items`` on ``workers`` actors, then end them (and a cluster started here)."""
     from gpc.tasks import user_tasks
 
-    started = _connect(options)
+    started = _connect(options, min(workers, len(items)))
     ray = require()
     try:
         blobs = {key: (ray.put(_pack(path)), Path(path).name, Path(path).is_dir())
