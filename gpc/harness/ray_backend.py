@@ -72,7 +72,8 @@ def _connect(options: RayOptions, workers: int = 1) -> bool:
     common = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
     try:
         if options.address is None:
-            ray.init(num_cpus=max(os.cpu_count() or 1, math.ceil(workers * options.cpus)), **common)
+            # "local": a new cluster of its own, even where another runs on this machine (a test's, a `ray start`)
+            ray.init(address="local", num_cpus=max(os.cpu_count() or 1, math.ceil(workers * options.cpus)), **common)
         else:
             ray.init(address=options.address, **common)
     except ConnectionError as exc:
