@@ -21,13 +21,12 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.sequence import HeldOutOf
 from gpc.datasets.store import EpisodeStore
 from gpc.models.planning.protocols import WorldModel
-from gpc.models.rewards.registration import RegistrationReward, RewardConfig
-from gpc.models.rewards.state import state_reward
+from gpc.models.rewards.registration import RegistrationReward
 from gpc.models.training.checkpoint import checkpoint_meta
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import TrainingDiverged, train
 from gpc.models.world_models.config import WorldModelConfig
-from gpc.models.world_models.eval_state import evaluate_rollouts, markdown_table, spearman
+from gpc.models.world_models.eval_state import evaluate_rollouts
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.profiles import world_model_profile
 from gpc.tasks.pusht import LAYOUT
@@ -201,29 +200,6 @@ def test_angles_near_zero_and_two_pi_predict_the_same(phase1):
     turn = torch.remainder(a[..., 4] - b[..., 4] + math.pi, 2 * math.pi) - math.pi
     assert torch.allclose(a[..., :4], b[..., :4], atol=0.5), (a, b)
     assert (turn - 0.02).abs().max() < 0.02, turn  # apart by the inputs' 0.02 rad, no 2 pi jump
-
-
-def test_eval_beats_the_nothing_moves_baseline(phase2, store):
-    report = evaluate_rollouts(phase2.module, [store], layout=LAYOUT)
-    first, last = report["steps"][0], report["steps"][-1]
-    assert report["split"] == "val" and report["episodes"] == 2 and len(report["steps"]) == 8
-    assert first["model"]["agent_px"] < 0.6 * first["baseline"]["agent_px"]  # about 4 px against 9
-    assert last["model"]["registration_px"] < last["baseline"]["registration_px"]
-    assert report["mean_over_steps"]["model"]["object_px"] < report["mean_over_steps"]["baseline"]["object_px"]
-
-
-def test_eval_judges_the_task_reward(phase2, store):
-    reward = state_reward("registration", LAYOUT, RewardConfig(aggregate="final"))
-    report = evaluate_rollouts(phase2.module, [store], layout=LAYOUT, reward=reward)
-    for row in report["steps"]:  # |r(pred) - r(true)| <= the vertices' distance between them (triangle inequality)
-        for guess in ("model", "baseline"):
-            assert row[guess]["reward"] <= row[guess]["registration_px"] + 1e-3, row
-    assert report["steps"][-1]["model"]["reward"] < report["steps"][-1]["baseline"]["reward"]
-    change = report["reward_change"]  # "nothing moves" predicts no change: only the model's ranking is scored
-    assert change["spearman"] > 0.5 and change["recorded_std"] > 0, change
-    assert "Spearman" in markdown_table(report) and "reward" in markdown_table(report)
-    assert spearman(np.array([1.0, 2.0, 3.0]), np.array([3.0, 5.0, 9.0])) == pytest.approx(1.0)
-    assert spearman(np.array([1.0, 2.0, 3.0]), np.array([2.0, 2.0, 2.0])) is None
 
 
 def test_wrong_kind_checkpoint_and_nan_data_are_one_line_errors(phase1, store, runs, tmp_path):

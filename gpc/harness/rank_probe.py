@@ -22,14 +22,8 @@ from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Plan
+from gpc.models.stats import spearman
 from gpc.tasks.base import Task
-
-
-def spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Rank correlation of two score vectors (NaN where either is constant)."""
-    if a.std() == 0 or b.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
 class RankProbe:

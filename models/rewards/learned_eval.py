@@ -23,6 +23,7 @@ from gpc.datasets.sequence import recorded_held_out
 from gpc.datasets.store import EpisodeStore
 from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule, resize
 from gpc.models.rewards.registration import pose_errors
+from gpc.models.stats import spearman
 
 GOAL_KEY = "goal"  # a store's per-step goal, where the task draws one per episode
 
@@ -42,21 +43,15 @@ def _episodes(datasets: Sequence[str | os.PathLike], split: str, record: dict[st
     return [pairs[i] for i in chosen]
 
 
-def _spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Rank correlation (NaN where either side is constant or there is one value)."""
-    ranks = [np.argsort(np.argsort(v)).astype(np.float64) for v in (a, b)]
-    return float(np.corrcoef(ranks[0], ranks[1])[0, 1]) if len(a) > 1 and ranks[0].std() > 0 and ranks[1].std() > 0 else float("nan")
-
-
 def _summary(errors: dict[str, np.ndarray]) -> dict[str, Any]:
     true, pred, err = errors["registration_true_px"], errors["registration_pred_px"], errors["registration_abs_err_px"]
-    spearman = _spearman(true, pred)
+    rho = spearman(true, pred)
     out: dict[str, Any] = {
         "frames": int(len(true)),
         "registration_mae_px": float(err.mean()), "registration_median_err_px": float(np.median(err)),
         "registration_p90_err_px": float(np.percentile(err, 90)),
         "constant_baseline_mae_px": float(np.abs(true - np.median(true)).mean()),
-        "spearman": spearman, "true_registration_mean_px": float(true.mean()),
+        "spearman": rho, "true_registration_mean_px": float(true.mean()),
         "vertex_px": float(errors["vertex_px"].mean()), "position_px": float(errors["position_px"].mean()),
         "angle_deg": float(errors["angle_deg"].mean()), "angle_median_deg": float(np.median(errors["angle_deg"])),
     }
@@ -149,12 +144,12 @@ def evaluate_state_reader(
         parts["true"].append(reward(states[:, None]).double().cpu().numpy())
         parts["state_err"].append((read - states).abs().double().cpu().numpy())
     pred, true, err = (np.concatenate(parts[k]) for k in ("pred", "true", "state_err"))
-    spearman = _spearman(true, pred)
+    rho = spearman(true, pred)
     return {"split": split, "datasets": [str(p) for p in datasets], "episodes": len(chosen), "stride": stride,
             "frame_size": size[0], "input_size": module.config.input_size, "config": module.config.to_dict(),
             "frames": int(len(true)), "reward_mae": float(np.abs(pred - true).mean()),
             "reward_p90_err": float(np.percentile(np.abs(pred - true), 90)),
-            "constant_baseline_mae": float(np.abs(true - np.median(true)).mean()), "spearman": spearman,
+            "constant_baseline_mae": float(np.abs(true - np.median(true)).mean()), "spearman": rho,
             "true_reward_mean": float(true.mean()), "state_abs_err": err.mean(axis=0).tolist()}
 
 

@@ -29,6 +29,7 @@ from gpc.datasets.layout import TaskLayout
 from gpc.datasets.sequence import HeldOutOf, WindowSpec, held_out_by, recorded_held_out, window_indices, window_starts
 from gpc.datasets.windows import load_stores
 from gpc.models.rewards.registration import layout_registration
+from gpc.models.stats import spearman
 from gpc.models.world_models.module import WorldModelModule
 from gpc.models.world_models.state import ACTION_KEY, STATE_KEY, wrap_angle
 
@@ -62,12 +63,6 @@ def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[
     return out
 
 
-def spearman(a: np.ndarray, b: np.ndarray) -> float | None:
-    """Rank correlation of two samples (ties by order), or None where either is constant."""
-    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
-        return None
-    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
-    return float(np.corrcoef(ra, rb)[0, 1])
 
 
 def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
@@ -145,7 +140,8 @@ def evaluate_rollouts(
     ranking = None
     if changes:
         predicted, recorded = (torch.cat(c).double().numpy() for c in zip(*changes, strict=True))
-        ranking = {"spearman": spearman(predicted, recorded), "predicted_std": float(predicted.std()),
+        rho = spearman(predicted, recorded)
+        ranking = {"spearman": None if np.isnan(rho) else rho, "predicted_std": float(predicted.std()),
                    "recorded_std": float(recorded.std())}
     means = {name: {m: (v / n).tolist() for m, v in d.items()} for name, d in sums.items()}
     steps = [{"step": i + 1, **{name: {m: means[name][m][i] for m in means[name]} for name in means}} for i in range(t)]
