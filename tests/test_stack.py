@@ -218,16 +218,45 @@ def test_planning_reward_is_the_env_reward_before_clipping_and_differentiable() 
 
     from gpc.models.rewards.state import state_reward
     from gpc.tasks import get_task
+    from gpc.tasks.stack.reward import StackReward
 
     task = get_task("stack")
-    reward = state_reward(task.state_reward, task.layout)  # named by module: imported and registered on first use
+    loaded = state_reward(task.state_reward, task.layout)  # named by module: imported and registered on first use
+    assert isinstance(loaded, StackReward)
     states = np.stack([initial_scene(seed) for seed in range(6)])
     states[3, geometry.RED] = states[3, geometry.BLUE] + [0.004, 0.0, CUBE_SIDE]
     futures = torch.tensor(states, dtype=torch.float64)[:, None].repeat(1, 3, 1).requires_grad_(True)
-    scores = reward(futures)
+    scores = StackReward(release=0.0)(futures)
     np.testing.assert_allclose(np.clip(1 + scores.detach().numpy(), 0, 1), geometry.reward(states), atol=1e-3)
-    scores.sum().backward()
+    loaded(futures).sum().backward()
     assert futures.grad is not None and torch.isfinite(futures.grad).all() and futures.grad[:, -1].abs().sum() > 0
+
+
+def test_planning_reward_pays_for_letting_go_on_the_target_only() -> None:
+    import torch
+
+    from gpc.tasks.stack.reward import NEAR, StackReward
+
+    on = initial_scene(3)
+    on[geometry.RED] = on[geometry.BLUE] + [0.003, 0.0, CUBE_SIDE]
+    held, let_go, far = on.copy(), on.copy(), on.copy()
+    held[0:4] = [*on[geometry.RED], 0.04]  # fingers closed on the cube
+    let_go[0:4] = [*(on[geometry.RED] + [0, 0, 0.06]), 0.08]  # open, fingertips 2.5 cm above its top
+    far[geometry.RED] += [0.05, 0.0, 0.0]
+    far[0:4] = [*(far[geometry.RED] + [0, 0, 0.06]), 0.08]
+    states = np.stack([held, let_go, far])
+    assert list(geometry.released(states)) == [False, True, True]
+    x = torch.tensor(states)[:, None]
+    bonus = (StackReward(release=0.5).per_step(x) - StackReward(release=0.0).per_step(x))[:, 0].numpy()
+    d = geometry.distance(states)
+    assert bonus[0] < 1e-3 and bonus[2] < 1e-4  # held on target, or let go 5 cm off it: nothing
+    assert bonus[1] == pytest.approx(0.5 * np.exp(-(d[1] / NEAR) ** 2), rel=0.1)
+    rng = np.random.default_rng(0)  # the soft release agrees with the environment's on states around a stack
+    many = np.repeat(on[None], 400, axis=0)
+    many[:, 0:3] = on[geometry.RED] + rng.uniform([-0.1, -0.1, -0.03], [0.1, 0.1, 0.08], (400, 3))
+    many[:, 3] = rng.uniform(0.0, 0.09, 400)
+    soft = StackReward.let_go(torch.tensor(many)).numpy()
+    assert np.mean((soft > 0.5) == geometry.released(many)) > 0.95
 
 
 def test_ground_truth_world_model_replays_the_env_exactly() -> None:
