@@ -45,3 +45,13 @@ def test_every_benchmark_runs_small_and_writes_its_table(tmp_path):
     assert [r.split("|")[4].strip() for r in table(doc, "tasks")][:2] == ["state step + reward", "render 96x96 (env.frame)"]
     assert len(table(doc, "policy")) == 1 and len(table(doc, "world_model")) == 1
     assert len(table(doc, "planners")) == 3 and len(table(doc, "vlm")) == 3
+
+
+def test_table_cost_counts_decisions_from_the_episodes_kept():
+    from benchmarks.table_cost import cost
+
+    folder = Path(__file__).parents[1] / "artifacts/pusht-cpu/results/pusht-cpu-vision-onpolicy/vrank-K100"
+    own, paper = cost(folder), cost(folder, seconds=11.745)
+    # 100 episodes of at most 300 steps, 8 actions a decision, ending at success: 31.3 decisions each
+    assert (own["episodes"], own["decisions"]) == (100, 3132) and paper["decisions"] == 3132
+    assert paper["hours"] == pytest.approx(3132 * 11.745 / 3600) and own["s_per_decision"] == pytest.approx(4.9686, abs=1e-3)

@@ -63,8 +63,6 @@ def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[
     return out
 
 
-
-
 def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathLike], keys: Sequence[str], split: str = "val",
                      episodes: int | None = None, horizon: int | None = None, stride: int = 1,
                      max_windows: int | None = None, held_out_of: HeldOutOf | None = None) -> tuple[Any, np.ndarray, np.ndarray, int]:
