@@ -55,9 +55,10 @@ def run_state_smoke(task: str, title: str, tmp_path: Path) -> list[str]:
 BASELINE_ROWS = ["bc", "vgps K=4", "dreamer K=4", "ladi K=4", "rank K=4", "gt-sim K=4"]
 
 
-def run_baselines_smoke(args: list[str], tmp_path: Path, task: str) -> None:
+def run_baselines_smoke(args: list[str], tmp_path: Path, task: str, stores: int = 2, suffix: str = "") -> None:
     """`make reproduce-baselines` on a state smoke pipeline's data and policy (``args``: its make command): each baseline
-    trains on the task's stores with its reward and ranks the policy's proposals; the table holds what each run measured."""
+    trains on the planning model's ``stores`` with the task's reward (its run named with ``suffix``) and ranks the
+    policy's proposals; the table holds what each run measured."""
     done = subprocess.run(["reproduce-baselines" if a == "reproduce" else a for a in args], cwd=ROOT, capture_output=True,
                           text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
@@ -65,8 +66,8 @@ def run_baselines_smoke(args: list[str], tmp_path: Path, task: str) -> None:
     table = json.loads((results / f"{task}_baselines.json").read_text())
     assert [r["label"] for r in table["rows"]] == BASELINE_ROWS
     for run, kind in (("vgps", "value"), ("latent", "latent-world-model"), ("ladi", "ladi-world-model")):
-        record = json.loads((tmp_path / "runs" / run / "run.json").read_text())
-        assert record["kind"] == kind and record["config"]["task"] == task and len(record["datasets"]) == 2
+        record = json.loads((tmp_path / "runs" / f"{run}{suffix}" / "run.json").read_text())
+        assert record["kind"] == kind and record["config"]["task"] == task and len(record["datasets"]) == stores
     assert_table_is_what_was_measured(table, (results / f"{task}_baselines.md").read_text(),
                                       [results / n for n in ("bc", "vgps-K4", "dreamer-K4", "ladi-K4", "rank-K4", "gt-sim-K4")])
 

@@ -5,7 +5,7 @@ Per step: minus the red cube's distance to its target one cube side above the bl
 gradients do not vanish far away), the distance smoothed at 0 so its gradient stays finite; plus a bonus of up to
 ``RELEASE`` for a release near the target (the red cube within about ``NEAR`` of it, the gripper open and its
 fingertips clear: soft versions of ``geometry.released``). Success needs the cube let go, and the distance alone
-scores holding it over the target as well as letting go, so gradient planners held it (docs/tasks.md). Both cubes
+scores holding it over the target as well as letting go, so gradient planners held it (docs/stack.md). Both cubes
 come from the prediction, so a plan that moves the blue cube is scored against where the blue cube goes; the
 ``goal`` observation is not needed. Torch only (tasks import no ``gpc.models``); ``gpc.models.rewards.state``
 imports it by name.
