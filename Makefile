@@ -43,7 +43,8 @@ ASCENT.stack := --trust-region 0.01 --keep-best
 # Block Stacking: onpolicy, chosen on validation seeds 200000-200049 (3x more accurate on the policy's episodes;
 # GPC-RANK K=100 0.608 against 0.556, GPC-RANK+OPT 0.754 / 48% against 0.780 / 36%; docs/stack.md).
 WM_PLAN.stack := onpolicy
-WM_PLAN ?= $(or $(WM_PLAN.$(TASK)),phase2)
+WM_PLAN_DEFAULT := $(or $(WM_PLAN.$(TASK)),phase2)
+WM_PLAN ?= $(WM_PLAN_DEFAULT)
 POLICY_OBS := $(or $(POLICY_OBS.$(TASK)),state)
 TITLE := $(or $(TITLE.$(TASK)),$(TASK))
 # The 186 human demonstrations shipped beside the checkout (the image policy's data; check-sim replays them).
@@ -85,7 +86,7 @@ else
   $(error GOAL=$(GOAL): use fixed or random)
 endif
 # Results planned with another model than the task's default keep their own folder.
-PLAN_TAG := $(if $(filter $(WM_PLAN),$(or $(WM_PLAN.$(TASK)),phase2)),,-wm-$(WM_PLAN))
+PLAN_TAG := $(if $(filter $(WM_PLAN),$(WM_PLAN_DEFAULT)),,-wm-$(WM_PLAN))
 ifeq ($(EXPLORE),0)
   WM_RUN := $(RUN_DIR)/wm-no-explore
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr
@@ -160,7 +161,7 @@ else ifeq ($(PROFILE),paper)
   POLICY := --profile paper
   WM1 := --profile cpu
   WM2 := --profile cpu
-  RECORD := --seed 70000 --episodes 2000 --batch 50
+  RECORD := --seed 70000 --episodes 2000 --batch 50  # WM_PLAN=onpolicy at paper sizes: not measured yet
   RECORD_HELDOUT := --seed 80000 --episodes 50 --batch 50
   WM_ONPOLICY := --profile cpu --max-steps 10000
   EVAL := --seeds $(or $(SEEDS),100000:100100) --batch 50
