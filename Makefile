@@ -108,6 +108,16 @@ VKNOTS ?= 4
 ARGS.vopt-M25 := --planner opt -M 25 --knots $(VKNOTS)
 ARGS.vrank-opt-10x25 := --planner rank-opt -K 10 -M 25 --knots $(VKNOTS)
 ARGS.vgt-sim-K100 := --planner gt-sim -K 100
+# The paper's state table (Table I, Push-T): its K and M. `make reproduce-pusht-table1` runs them beside the state table
+# (same results folder and ceiling: the rows both have are run once).
+PAPER_PLANNERS := rank-K100 rank-K1000 rank-K5000 opt-M30 rank-opt-10x30 rank-opt-20x30 rank-opt-30x20
+ARGS.rank-K100 := --planner rank -K 100
+ARGS.rank-K1000 := --planner rank -K 1000
+ARGS.rank-K5000 := --planner rank -K 5000
+ARGS.opt-M30 := --planner opt -M 30 $(ASCENT.$(TASK))
+ARGS.rank-opt-10x30 := --planner rank-opt -K 10 -M 30 $(ASCENT.$(TASK))
+ARGS.rank-opt-20x30 := --planner rank-opt -K 20 -M 30 $(ASCENT.$(TASK))
+ARGS.rank-opt-30x20 := --planner rank-opt -K 30 -M 20 $(ASCENT.$(TASK))
 
 # Profiles: smoke (minutes, used by tests), cpu (default, 2 cores), paper (paper sizes, GPU).
 # PLANNERS: the controllers evaluated on the same seeds (result folder names); ARGS.NAME: their gpc eval options.
@@ -166,11 +176,6 @@ else ifeq ($(PROFILE),paper)
   WM_ONPOLICY := --profile cpu --max-steps 10000
   EVAL := --seeds $(or $(SEEDS),100000:100100) --batch 50
   PLANNERS := rank-K100 rank-K1000 opt-M30 rank-opt-10x30 rank-opt-20x30 cem-100x5 mppi-100x5 grad-100x30
-  ARGS.rank-K100 := --planner rank -K 100
-  ARGS.rank-K1000 := --planner rank -K 1000
-  ARGS.opt-M30 := --planner opt -M 30 $(ASCENT.$(TASK))
-  ARGS.rank-opt-10x30 := --planner rank-opt -K 10 -M 30 $(ASCENT.$(TASK))
-  ARGS.rank-opt-20x30 := --planner rank-opt -K 20 -M 30 $(ASCENT.$(TASK))
   ARGS.cem-100x5 := --planner cem -K 100 -M 5
   ARGS.mppi-100x5 := --planner mppi -K 100 -M 5
   ARGS.grad-100x30 := --planner grad -K 100 -M 30
@@ -209,9 +214,6 @@ else ifeq ($(PROFILE),cpu)
   EVAL := --seeds $(or $(SEEDS),100000:100100) --batch 25
   PLANNERS := rank-K10 rank-K100 opt-M30 rank-opt-10x30 cem-100x5 mppi-100x5 grad-10x30
   ARGS.rank-K10 := --planner rank -K 10
-  ARGS.rank-K100 := --planner rank -K 100
-  ARGS.opt-M30 := --planner opt -M 30 $(ASCENT.$(TASK))
-  ARGS.rank-opt-10x30 := --planner rank-opt -K 10 -M 30 $(ASCENT.$(TASK))
   ARGS.cem-100x5 := --planner cem -K 100 -M 5
   ARGS.mppi-100x5 := --planner mppi -K 100 -M 5
   ARGS.grad-10x30 := --planner grad -K 10 -M 30
@@ -245,11 +247,12 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-baselines reproduce-baselines-vision reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-pusht-table1 reproduce-baselines reproduce-baselines-vision reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
 
 help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw|stack, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random, WM_PLAN=phase2|onpolicy)"
 	@echo "make reproduce-pusht   the same for TASK=pusht (the default)"
+	@echo "make reproduce-pusht-table1  the paper's Table I on state Push-T: BC, GPC-RANK K=100/1000/5000, GPC-OPT M=30, GPC-RANK+OPT 10x30/20x30/30x20, the ceiling"
 	@echo "make reproduce-vision  the same for image observations (TASK=pusht|swap|draw|stack; fixed goals; visual world model, learned reward; VWM_PLAN=onpolicy|student|teacher, VPLANNERS, VPRECISION, VWM_PRECISION)"
 	@echo "make reproduce-baselines  the paper's Table III baselines (V-GPS, DreamerV3-style, LaDi-WM-style) on the state policy's proposals beside GPC-RANK and the ceiling (SEEDS=100000:100050: its protocol)"
 	@echo "make reproduce-baselines-vision  the same baselines on the image policy's proposals, beside the vision table's GPC rows (VBASELINE_SEEDS=100000:100050)"
@@ -442,6 +445,10 @@ reproduce: $(TABLE)
 	@cat $(TABLE)
 
 reproduce-pusht: reproduce
+
+# Table I's K and M beside the paper's row, in their own table (`BACKEND=ray` spreads it: issue 47, docs/scale-out.md).
+reproduce-pusht-table1:
+	$(MAKE) reproduce TASK=pusht PLANNERS="$(PAPER_PLANNERS)" TABLE=$(patsubst %_state.md,%_table1.md,$(TABLE))
 
 # The vision pipeline: an image policy, the visual (EDM) world model (phase 1, phase 2, then its one-step student)
 # and the learned image reward; each stage resumes from what an interrupted run left.

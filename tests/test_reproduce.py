@@ -156,6 +156,16 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert third.returncode == 0 and (tmp_path / "results" / "rank-K4" / "summary.json").exists()
     assert {p: p.stat().st_mtime_ns for p in stamps if "rank-K4" not in str(p)} == {
         p: t for p, t in stamps.items() if "rank-K4" not in str(p)}
+    # the paper's Table I: its seven planners on Ray, beside the BC and ceiling already measured, in a table of its own
+    table1 = subprocess.run([a.replace("reproduce-pusht", "reproduce-pusht-table1") for a in args] + ["BACKEND=ray", "-n"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert table1.returncode == 0, table1.stderr[-2000:]
+    evals = [line for line in table1.stdout.splitlines() if "gpc eval" in line]
+    assert [e.split("--planner ")[1].split(" --")[0].strip() for e in evals] == [
+        "rank -K 100", "rank -K 1000", "rank -K 5000", "opt -M 30", "rank-opt -K 10 -M 30", "rank-opt -K 20 -M 30",
+        "rank-opt -K 30 -M 20"]  # BC and the ceiling are up to date
+    assert all("--backend ray" in e for e in evals)
+    assert f"--out {tmp_path / 'results' / 'pusht_table1.md'}" in table1.stdout and "--paper pusht-state" in table1.stdout
     vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
     vres, shared, runs = run_vision_smoke(vargs, tmp_path, "pusht")
     run_vision_baselines_smoke(vargs, tmp_path, "pusht")
