@@ -206,8 +206,11 @@ def eval_ranking(
     checkpoint: Checkpoint,
     planner: PlannerKind = "rank",
     planning: dict | None = None,
-    scorer: list[str] = typer.Option(..., "--scorer", help="PLANNER=CHECKPOINT, repeated: each ranking planner to probe "
+    scorer: list[str] = typer.Option([], "--scorer", help="PLANNER=CHECKPOINT, repeated: each ranking planner to probe "
                                      "(rank=WM.ckpt, vgps=VALUE.ckpt, dreamer=LATENT.ckpt, ladi=LADI.ckpt); the other options apply to all."),
+    save_replays: Path | None = typer.Option(None, "--save-replays", help="A new store: every decision's K proposals "
+                                             "replayed in the simulator, as short episodes a state world model trains on "
+                                             "(use training seeds, not validation or test seeds)."),
     seeds: str = typer.Option("200000:200010", "--seeds", help="Seed range START:STOP or a list (validation seeds: not the test seeds)."),
     out: Path = typer.Option(Path("results/ranking.md"), "--out", "-o", help="Markdown report to write (and .json beside it)."),
     batch: int = typer.Option(10, "--batch", min=1, max=MAX_COUNT, help="Episodes stepped in lockstep."),
@@ -220,10 +223,15 @@ def eval_ranking(
     from gpc.cli.reports import parse_seeds
     from gpc.harness.files import check_file_out, write_atomic
     from gpc.harness.rank_probe import markdown, probe_ranking
+    from gpc.harness.replays import ReplayLog, check_replay_out
     from gpc.tasks import get_task
 
     assert planning is not None  # with_planning_options passes them
     check_file_out(out, ".md", beside=(".json",))
+    if not scorer and save_replays is None:
+        raise typer.BadParameter("name a scorer to probe (rank=WM.ckpt), or --save-replays STORE", param_hint="--scorer")
+    if save_replays is not None:
+        check_replay_out(save_replays)
     pairs = [s.partition("=") for s in scorer]
     if any(not name or not sep or not ckpt for name, sep, ckpt in pairs):
         raise typer.BadParameter("use PLANNER=CHECKPOINT (rank=runs/wm/checkpoints/last.ckpt)", param_hint="--scorer")
@@ -238,16 +246,26 @@ def eval_ranking(
         planners[name if names.count(name) == 1 else f"{name} {ckpt}"] = recipe()
         recipes.append(recipe.summary())
         task_name = recipe.task
+    proposer = recipe_from_options(checkpoint, "gt-sim", planning, goal) if not pairs else None  # the policy alone proposes
+    task_name = proposer.task if proposer is not None else task_name
     assert task_name is not None  # make_recipe names the task
     task = get_task(task_name)
     k = planning["k"] or 100
+    first = proposer() if proposer is not None else None
+    replays = ReplayLog(max([first.n_obs_steps] if first else [p.n_obs_steps for p in planners.values()])) if save_replays else None
     summary = {"scorers_run": recipes, "seeds": seeds, "k": k, "max_steps": max_steps,
-               **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal)}
-    report = markdown(summary, f"Ranking probed: {', '.join(planners)}, K={k}, seeds {seeds}, {max_steps} steps")
+               **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal, first, replays)}
+    report = markdown(summary, f"Ranking probed: {', '.join(planners) or 'no scorer'}, K={k}, seeds {seeds}, {max_steps} steps")
+    if replays is not None and save_replays is not None:
+        n = replays.write(save_replays, task, {"policy": str(checkpoint), "k": k, "seeds": seeds, "max_steps": max_steps,
+                                                "goal": goal, "history": replays.history})
+        summary["replays"] = {"store": str(save_replays), "episodes": n}
     out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(out.with_suffix(".json"), json.dumps(summary, indent=1))
     write_atomic(out, report)
     typer.echo(report)
+    if replays is not None:
+        typer.echo(f"wrote {summary['replays']['episodes']} replayed proposals to {save_replays}")
     typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
 
 

@@ -19,29 +19,37 @@ import torch
 
 from gpc.harness.evaluation import EvalConfig, run_group
 from gpc.harness.recipes import RewardSpec, build_reward
+from gpc.harness.replays import ReplayLog
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Plan
 from gpc.models.stats import spearman
-from gpc.tasks.base import Task
+from gpc.tasks.base import STATE_KEY, Task
 
 
 class RankProbe:
-    """A ``Controller``: BC's decisions (the first proposal), with every scorer and the simulator scoring all K."""
+    """A ``Controller``: BC's decisions (the first proposal), with every scorer and the simulator scoring all K.
 
-    def __init__(self, planners: Mapping[str, Planner], task: Task, k: int) -> None:
-        first = next(iter(planners.values()))
-        self.planners, self.task, self.k, self.proposer = dict(planners), task, k, first
+    ``proposer``: the planner whose policy proposes (default: the first scorer's); ``replays``: where the replayed
+    proposals are kept as training episodes (``gpc.harness.replays``)."""
+
+    def __init__(self, planners: Mapping[str, Planner], task: Task, k: int, proposer: Planner | None = None,
+                 replays: ReplayLog | None = None) -> None:
+        first = proposer or next(iter(planners.values()))
+        self.planners, self.task, self.k, self.proposer, self.replays = dict(planners), task, k, first, replays
         self.simulator, self.truth = task.simulator(), build_reward(RewardSpec(), task)
-        keys = [key for p in planners.values() for key in p.obs_keys] + [task.sim_key]
+        every = [first, *planners.values()]
+        keys = [key for p in every for key in p.obs_keys] + [task.sim_key] + ([STATE_KEY] if replays else [])
         self.obs_keys = tuple(dict.fromkeys(keys))
-        self.n_obs_steps = max(p.n_obs_steps for p in planners.values())
+        self.n_obs_steps = max(p.n_obs_steps for p in every)
         self.n_action_steps = first.n_action_steps
         self.rows: dict[str, list[tuple[float, bool, float]]] = {name: [] for name in planners}
         self.random_regret: list[float] = []
+        self.seeds: list[int] = []
 
     def start(self, episodes: Sequence[int]) -> None:
-        for planner in self.planners.values():
+        self.seeds = list(episodes)
+        for planner in dict.fromkeys([self.proposer, *self.planners.values()]):
             planner.start(episodes)
 
     def plan(self, obs: Mapping[str, np.ndarray], generators: Sequence[torch.Generator]) -> Plan:
@@ -50,7 +58,8 @@ class RankProbe:
         goal = torch.as_tensor(np.asarray(obs[GOAL_KEY])[:, -1], dtype=torch.float32) if GOAL_KEY in obs else None
         sim = Objective(self.simulator, self.truth, torch.as_tensor(np.asarray(obs[self.task.sim_key])), goal, timer)
         with torch.no_grad():
-            true = sim(chunks)[0].cpu().numpy()
+            true_scores, futures = sim(chunks)
+            true = true_scores.cpu().numpy()
             for name, planner in self.planners.items():
                 scores = planner.scorer.objective(obs, timer, planner.episodes)(chunks)[0].detach().cpu().numpy()
                 for b in range(len(true)):
@@ -59,6 +68,9 @@ class RankProbe:
                     self.rows[name].append((spearman(scores[b], true[b]), pick == int(true[b].argmax()), best - float(true[b][pick])))
         self.random_regret.extend((true.max(axis=1) - true.mean(axis=1)).tolist())
         chunk = chunks[:, 0].cpu().numpy()
+        if self.replays is not None:
+            self.replays.add(self.seeds, np.asarray(obs[STATE_KEY]), chunks.cpu().numpy(), futures.cpu().numpy(),
+                             chunk[:, : self.n_action_steps])
         return Plan(actions=chunk[:, : self.n_action_steps], chunk=chunk, seconds=timer.seconds)
 
     def summary(self) -> dict[str, Any]:
@@ -73,9 +85,9 @@ class RankProbe:
 
 
 def probe_ranking(planners: Mapping[str, Planner], task: Task, seeds: tuple[int, ...], k: int, max_steps: int, batch: int,
-                  goal: str = "fixed") -> dict[str, Any]:
+                  goal: str = "fixed", proposer: Planner | None = None, replays: ReplayLog | None = None) -> dict[str, Any]:
     """Run BC's episodes on ``seeds`` in lockstep groups of ``batch``, scoring every decision's K proposals."""
-    probe = RankProbe(planners, task, k)
+    probe = RankProbe(planners, task, k, proposer, replays)
     scores: list[float] = []
     for i in range(0, len(seeds), batch):
         group = seeds[i : i + batch]

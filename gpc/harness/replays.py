@@ -1,0 +1,74 @@
+"""The policy's proposals replayed in the true simulator, kept as short episodes a state world model trains on.
+
+A ranking planner asks its world model to tell apart K chunks from one state. The episodes a model is trained on
+hold one chunk per state (the one executed), so it learns where trajectories go more than what a different chunk
+would change. At each decision of the ranking probe (``gpc eval ranking --save-replays``) every proposal is already
+replayed from the exact simulator state; this keeps those replays. Each becomes one short episode laid out as a
+world-model window wants it (``WorldModelConfig``'s timeline)::
+
+    states   | s_-1 s_0 | f_1 ... f_T |     the last H observed states, then the proposal's true futures
+    actions  | a_-1 c_1 | c_2 ... pad |     a_-1: the action executed before (moved s_-1 to s_0); c: the proposal
+
+so its windows supervise the step before (from a padded history, as at an episode's start) and the T replayed steps.
+Decisions without H - 1 executed actions before them (an episode's first) are skipped.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gpc.datasets.errors import DataError
+from gpc.datasets.fresh import fresh
+from gpc.datasets.store import EpisodeStore
+from gpc.harness.files import check_out
+from gpc.tasks.base import ACTION_KEY, STATE_KEY, Task
+
+
+def check_replay_out(path: Path) -> None:
+    """Before any work: ``path`` is new (a replay store is written whole, never appended to) and writable."""
+    if path.exists() or path.is_symlink():
+        raise DataError(f"{path}: already exists; --save-replays writes a new store (give another path, or remove it)")
+    check_out(path.parent)
+
+
+class ReplayLog:
+    """Mini-episodes of the replayed proposals, per episode in seed order, kept in memory until written."""
+
+    def __init__(self, history: int) -> None:
+        self.history = history
+        self.executed: dict[int, deque[np.ndarray]] = {}  # seed -> the last H - 1 actions it executed
+        self.episodes: list[tuple[int, dict[str, np.ndarray]]] = []
+
+    def add(self, seeds: Sequence[int], states: np.ndarray, chunks: np.ndarray, futures: np.ndarray,
+            executed: np.ndarray) -> None:
+        """One decision of the episodes ``seeds``: their observed ``states`` (B, >=H, D), the proposals ``chunks``
+        (B, K, T, A), their true ``futures`` (B, K, T, D), and the actions then executed (B, n, A)."""
+        h = self.history
+        for b, seed in enumerate(seeds):
+            before = self.executed.setdefault(int(seed), deque(maxlen=max(h - 1, 1)))
+            if len(before) >= h - 1:
+                past = np.stack(list(before)[len(before) - (h - 1):]) if h > 1 else np.zeros((0, chunks.shape[-1]))
+                for k in range(chunks.shape[1]):
+                    actions = np.concatenate([past, chunks[b, k], chunks[b, k, -1:]]).astype(np.float32)
+                    state = np.concatenate([states[b, -h:], futures[b, k]]).astype(np.float32)
+                    self.episodes.append((int(seed), {STATE_KEY: state, ACTION_KEY: actions}))
+            before.extend(np.asarray(executed[b]))
+
+    def write(self, path: Path, task: Task, provenance: dict[str, Any]) -> int:
+        """A new store at ``path`` holding every mini-episode (grouped by seed, in the order decided); their count."""
+        if not self.episodes:
+            raise DataError(f"{path}: no decision had {self.history - 1} executed actions before it; nothing to save")
+        order = sorted(range(len(self.episodes)), key=lambda i: self.episodes[i][0])  # stable: decision order per seed
+        with fresh(path) as made:
+            store = EpisodeStore.create(path, {"task": task.name, "collector": {"kind": "replays", **provenance},
+                                               "keys": [STATE_KEY, ACTION_KEY]})
+            for i in order:
+                seed, data = self.episodes[i]
+                store.append_episode(data, seed=seed)  # score unknown: `gpc data info` reads it off the states
+            made.keep()
+        return len(order)

@@ -1,0 +1,77 @@
+"""`gpc eval ranking --save-replays`: every decision's proposals replayed in the simulator, kept as short episodes laid
+out as a world model's windows, and a world model trains on them."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gpc.cli.main import app
+from gpc.datasets.store import EpisodeStore
+from gpc.datasets.windows import load_stores
+from gpc.models.training.config import RunConfig
+from gpc.models.training.trainer import train
+from gpc.models.world_models.module import WorldModelModule
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+K, STEPS, N_ACTION = 3, 24, 8  # 3 decisions per episode, the first without an executed action before it
+
+
+@pytest.fixture(scope="module")
+def replays(ckpts, tmp_path_factory) -> Path:
+    tmp = tmp_path_factory.mktemp("replays")
+    res = CliRunner().invoke(app, ["eval", "ranking", ckpts["policy"], "-K", str(K), "--seeds", "70000:70002",
+                                   "--max-steps", str(STEPS), "--batch", "2", "--save-replays", str(tmp / "replays.zarr"),
+                                   "--scorer", f"rank={ckpts['wm']}", "--out", str(tmp / "probe.md")])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp / "probe.json").read_text())["replays"]["episodes"] == 2 * 2 * K
+    return tmp / "replays.zarr"
+
+
+def test_each_replay_starts_from_the_observed_history_and_chains_into_the_next_decision(replays):
+    store = EpisodeStore.open(replays)
+    assert list(store.episode_seeds()) == [70000] * 2 * K + [70001] * 2 * K  # per seed, decision after decision
+    assert store.attrs["collector"]["kind"] == "replays" and store.attrs["collector"]["k"] == K
+    episodes = [store.episode(i) for i in range(store.n_episodes)]
+    horizon = len(episodes[0]["state"]) - 2
+    assert all(len(e["state"]) == len(e["action"]) == horizon + 2 for e in episodes)
+    for seed in range(2):
+        first, second = episodes[seed * 2 * K : seed * 2 * K + K], episodes[seed * 2 * K + K : (seed + 1) * 2 * K]
+        for group in (first, second):  # the K proposals of one decision: one history, one action before, K futures
+            assert all(np.array_equal(e["state"][:2], group[0]["state"][:2]) for e in group)
+            assert all(np.array_equal(e["action"][0], group[0]["action"][0]) for e in group)
+            assert not np.allclose(group[0]["state"][2:], group[1]["state"][2:])
+        # the probe executes the first proposal's N_ACTION actions: its replay is where the episode went, exactly
+        executed = first[0]
+        np.testing.assert_allclose(second[0]["state"][:2], executed["state"][N_ACTION : N_ACTION + 2], atol=1e-2)
+        np.testing.assert_array_equal(second[0]["action"][0], executed["action"][N_ACTION])
+
+
+def test_a_world_model_trains_on_the_replays_beside_its_data(ckpts, replays, tmp_path):
+    wm = WorldModelModule.load_from_checkpoint(ckpts["wm"])
+    arrays = load_stores([replays], ["state", "action"])
+    assert arrays.n_episodes == 2 * 2 * K
+    config = dataclasses.replace(wm.config, phase=2)
+    run = train(WorldModelModule, config, [Path(ckpts["dir"]) / "expert.zarr", replays],
+                RunConfig(run_dir=tmp_path / "wm", max_steps=3, batch_size=16, progress=False, accelerator="cpu"),
+                init=ckpts["wm"])
+    assert run.last.exists()
+
+
+@pytest.mark.parametrize("case", ["exists", "nothing"])
+def test_refusals_name_the_option_and_write_nothing(ckpts, tmp_path, case):
+    target = tmp_path / "replays.zarr"
+    if case == "exists":
+        target.mkdir()
+        (target / "mine.txt").write_text("keep")
+    args = ["eval", "ranking", ckpts["policy"], "--seeds", "70000:70001", "--max-steps", "8", "--out", str(tmp_path / "p.md")]
+    res = CliRunner().invoke(app, args + (["--save-replays", str(target)] if case == "exists" else []))
+    assert res.exit_code == 2
+    assert ("already exists; --save-replays writes a new store" if case == "exists" else "--save-replays STORE") in res.output
+    assert not (tmp_path / "p.md").exists() and not (tmp_path / "p.json").exists()
+    assert case != "exists" or (target / "mine.txt").read_text() == "keep"
