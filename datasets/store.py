@@ -26,7 +26,7 @@ import json
 import math
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -330,17 +330,29 @@ class EpisodeStore:
     # ------------------------------------------------------------------ writing
     def append_episode(self, data: dict[str, np.ndarray], seed: int = -1, score: float = np.nan) -> None:
         """Append one whole episode; ``episode_ends`` is written last (the commit)."""
+        self.append_episodes([data], [seed], [score])
+
+    def append_episodes(self, episodes: Sequence[dict[str, np.ndarray]], seeds: Sequence[int],
+                        scores: Sequence[float] | None = None) -> None:
+        """Append whole episodes in one write per array (many short ones cost one chunk rewrite, not one each);
+        ``episode_ends`` is written last (the commit): an interrupted call adds none of them."""
         if not self.writable:
             raise DataError(f"{self.path}: opened read-only")
-        lengths = {k: len(v) for k, v in data.items()}
-        length = next(iter(lengths.values()), 0)
-        if length == 0 or any(n != length for n in lengths.values()):
-            raise DataError(f"{self.path}: episode arrays must be non-empty and equally long, got {lengths}")
-        if self.n_episodes and set(data) != set(self.keys):
-            raise DataError(f"{self.path}: episode keys {sorted(data)} differ from the store's {self.keys}")
-        data = {k: np.asarray(v) for k, v in data.items()}
+        if not episodes or len(seeds) != len(episodes) or (scores is not None and len(scores) != len(episodes)):
+            raise DataError(f"{self.path}: {len(episodes)} episodes need as many seeds and scores")
+        keys = set(episodes[0])
+        lengths = []
+        for data in episodes:
+            sizes = {k: len(v) for k, v in data.items()}
+            length = next(iter(sizes.values()), 0)
+            if length == 0 or any(n != length for n in sizes.values()):
+                raise DataError(f"{self.path}: episode arrays must be non-empty and equally long, got {sizes}")
+            if set(data) != keys or (self.n_episodes and keys != set(self.keys)):
+                raise DataError(f"{self.path}: episode keys {sorted(data)} differ from the store's {self.keys or sorted(keys)}")
+            lengths.append(length)
+        joined = {k: np.concatenate([np.asarray(d[k]) for d in episodes]) for k in episodes[0]}
         group, meta = _group(self.root["data"]), _group(self.root["meta"])
-        for key, value in data.items():  # every check before the first write: a refused episode changes nothing
+        for key, value in joined.items():  # every check before the first write: a refused episode changes nothing
             if np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
                 raise DataError(f"{self.path}: refusing to write NaN or inf into data/{key}")
             if key in group and _array(group[key]).shape[1:] != value.shape[1:]:
@@ -348,7 +360,7 @@ class EpisodeStore:
         for name in ("episode_seeds", "episode_scores"):
             if name not in meta:
                 raise DataError(f"{self.path}: meta/{name} is missing (not a store gpc can append to)")
-        for key, value in data.items():
+        for key, value in joined.items():
             if key not in group:
                 row = int(np.prod(value.shape[1:])) * value.dtype.itemsize
                 chunk = max(1, min(4096, _CHUNK_BYTES // max(1, row)))
@@ -356,11 +368,12 @@ class EpisodeStore:
                                    dtype=value.dtype, compressors=_compressor())
             arr = _writes_every_chunk(_array(group[key]))
             arr.append(value.astype(arr.dtype, copy=False), axis=0)
-        _writes_every_chunk(_array(meta["episode_seeds"])).append(np.array([seed], dtype=np.int64))
-        _writes_every_chunk(_array(meta["episode_scores"])).append(np.array([score], dtype=np.float64))
-        new_end = self.n_steps + length
-        _writes_every_chunk(_array(meta["episode_ends"])).append(np.array([new_end], dtype=np.int64))
-        self._ends = np.append(self._ends, new_end)
+        _writes_every_chunk(_array(meta["episode_seeds"])).append(np.asarray(seeds, dtype=np.int64))
+        _writes_every_chunk(_array(meta["episode_scores"])).append(
+            np.full(len(episodes), np.nan) if scores is None else np.asarray(scores, dtype=np.float64))
+        new_ends = self.n_steps + np.cumsum(lengths, dtype=np.int64)
+        _writes_every_chunk(_array(meta["episode_ends"])).append(new_ends)
+        self._ends = np.append(self._ends, new_ends)
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
         for i in range(self.n_episodes):

@@ -61,6 +61,26 @@ def test_bad_appends_are_refused_and_leave_the_store_intact(tmp_path):
     assert again.n_episodes == 1 and again.n_steps == 4
 
 
+def test_episodes_appended_together_equal_those_appended_one_by_one_and_a_bad_one_refuses_them_all(tmp_path):
+    one, many = (EpisodeStore.create(tmp_path / f"{n}.zarr", {"task": "pusht"}) for n in ("one", "many"))
+    episodes = [_episode(i, n) for i, n in enumerate([3, 5, 2, 4])]
+    for i, ep in enumerate(episodes):
+        one.append_episode(ep, seed=7 + i, score=0.1 * i)
+    many.append_episodes(episodes[:1], [7], [0.0])
+    many.append_episodes(episodes[1:], [8, 9, 10], [0.1, 0.2, 0.30000000000000004])
+    a, b = EpisodeStore.open(tmp_path / "one.zarr"), EpisodeStore.open(tmp_path / "many.zarr")
+    np.testing.assert_array_equal(a.episode_ends, b.episode_ends)
+    np.testing.assert_array_equal(a.episode_seeds(), b.episode_seeds())
+    np.testing.assert_array_equal(a.episode_scores(), b.episode_scores())
+    for key in a.keys:
+        np.testing.assert_array_equal(a.read(key), b.read(key))
+    bad = _episode(9, 3)
+    bad["action"][1, 0] = np.inf
+    with pytest.raises(DataError, match="NaN or inf"):
+        many.append_episodes([_episode(8, 2), bad], [11, 12])
+    assert EpisodeStore.open(tmp_path / "many.zarr").n_episodes == 4 and b.n_steps == 14
+
+
 def test_create_never_replaces_what_is_there(tmp_path):
     """Replacing is the collector's business (staged beside, then renamed): a store is only ever created anew."""
     path = tmp_path / "s.zarr"

@@ -63,12 +63,13 @@ class ReplayLog:
         """A new store at ``path`` holding every mini-episode (grouped by seed, in the order decided); their count."""
         if not self.episodes:
             raise DataError(f"{path}: no decision had {self.history - 1} executed actions before it; nothing to save")
-        order = sorted(range(len(self.episodes)), key=lambda i: self.episodes[i][0])  # stable: decision order per seed
+        by_seed: dict[int, list[dict[str, np.ndarray]]] = {}
+        for seed, data in self.episodes:  # per seed, in the order decided
+            by_seed.setdefault(seed, []).append(data)
         with fresh(path) as made:
             store = EpisodeStore.create(path, {"task": task.name, "collector": {"kind": "replays", **provenance},
                                                "keys": [STATE_KEY, ACTION_KEY]})
-            for i in order:
-                seed, data = self.episodes[i]
-                store.append_episode(data, seed=seed)  # score unknown: `gpc data info` reads it off the states
+            for seed in sorted(by_seed):  # one write per seed; scores unknown (`gpc data info` reads them off the states)
+                store.append_episodes(by_seed[seed], [seed] * len(by_seed[seed]))
             made.keep()
-        return len(order)
+        return len(self.episodes)
