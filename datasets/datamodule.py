@@ -61,7 +61,8 @@ class EpisodeDataModule(L.LightningDataModule):
             self.val_episodes = np.array(sorted(config.val_episodes), dtype=np.int64)
             self.train_episodes = np.setdiff1d(np.arange(self.arrays.n_episodes), self.val_episodes)
         for name, episodes in (("training", self.train_episodes), ("held-out", self.val_episodes)):
-            if len(episodes) and not len(window_starts(self.arrays.episode_ends, episodes, config.spec, strict=False)):
+            if len(episodes) and not len(window_starts(self.arrays.episode_ends, episodes, config.spec, strict=False,
+                                                 mid_motion=self.arrays.mid_motion)):
                 raise DataError(f"{', '.join(config.paths)}: no {name} episode is long enough for a window of "
                                 f"{config.horizon} steps (lower the horizon or --val-ratio, or record longer episodes)")
         mask = np.zeros(len(self.arrays.data[config.action_key]), dtype=bool)

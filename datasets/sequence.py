@@ -18,6 +18,10 @@ import numpy as np
 from gpc.datasets.errors import DataError
 
 
+# A store's attribute ``episode_starts``: ``MID_MOTION`` where its episodes begin inside longer runs (no start padding).
+MID_MOTION = "mid-motion"
+
+
 @dataclass(frozen=True)
 class WindowSpec:
     """How many steps a sample spans and how far it may hang over episode edges."""
@@ -33,13 +37,18 @@ class WindowSpec:
             raise DataError(f"padding ({self.pad_before}, {self.pad_after}) must lie in [0, horizon={self.horizon})")
 
 
-def window_starts(episode_ends: np.ndarray, episodes: np.ndarray, spec: WindowSpec, strict: bool = True) -> np.ndarray:
-    """``(N, 3)`` rows of (episode start, episode length, window offset in the episode)."""
+def window_starts(episode_ends: np.ndarray, episodes: np.ndarray, spec: WindowSpec, strict: bool = True,
+                  mid_motion: np.ndarray | None = None) -> np.ndarray:
+    """``(N, 3)`` rows of (episode start, episode length, window offset in the episode).
+
+    ``mid_motion``: per episode (all of them, by index), whether it begins while things move (a replay cut from a
+    longer run, ``MID_MOTION``): no window starts before it, since a history repeating its first step would claim rest."""
     rows = []
     for i in episodes:
         start = int(episode_ends[i - 1]) if i else 0
         length = int(episode_ends[i]) - start
-        offsets = np.arange(-spec.pad_before, length - spec.horizon + spec.pad_after + 1)
+        before = 0 if mid_motion is not None and mid_motion[i] else spec.pad_before
+        offsets = np.arange(-before, length - spec.horizon + spec.pad_after + 1)
         rows.append(np.stack([np.full_like(offsets, start), np.full_like(offsets, length), offsets], axis=1))
     if not rows or sum(len(r) for r in rows) == 0:
         if not strict:

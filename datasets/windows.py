@@ -11,7 +11,7 @@ import torch
 from torch.utils.data import Dataset
 
 from gpc.datasets.errors import DataError
-from gpc.datasets.sequence import WindowSpec, window_indices, window_starts
+from gpc.datasets.sequence import MID_MOTION, WindowSpec, window_indices, window_starts
 from gpc.datasets.store import EpisodeStore
 
 IMAGE_KEYS = ("img", "pixels")
@@ -25,6 +25,7 @@ class EpisodeArrays:
     episode_ends: np.ndarray
     sources: list[str] = field(default_factory=list)
     counts: list[int] = field(default_factory=list)  # episodes per source, in order
+    mid_motion: np.ndarray | None = None  # per episode: it begins mid-motion (its store's ``episode_starts``)
 
     @property
     def n_episodes(self) -> int:
@@ -39,7 +40,7 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str]) -> EpisodeArra
     if not paths:
         raise DataError("no dataset given (pass --dataset PATH)")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    ends, offset, counts = [], 0, []
+    ends, offset, counts, moving = [], 0, [], []
     for path in paths:
         store = EpisodeStore.open(path)
         if store.n_episodes == 0:
@@ -54,8 +55,10 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str]) -> EpisodeArra
         ends.append(store.episode_ends + offset)
         offset += store.n_steps
         counts.append(store.n_episodes)
+        moving.append(np.full(store.n_episodes, store.attrs.get("episode_starts") == MID_MOTION))
     return EpisodeArrays(
-        {k: np.concatenate(v) for k, v in parts.items()}, np.concatenate(ends), [str(p) for p in paths], counts
+        {k: np.concatenate(v) for k, v in parts.items()}, np.concatenate(ends), [str(p) for p in paths], counts,
+        np.concatenate(moving) if any(m.any() for m in moving) else None,
     )
 
 
@@ -73,7 +76,7 @@ class WindowDataset(Dataset):
             if not 1 <= n <= spec.horizon:
                 raise DataError(f"{key}: {n} steps do not fit a window of {spec.horizon}")
         self.arrays, self.spec, self.steps = arrays, spec, steps
-        self.rows = window_starts(arrays.episode_ends, episodes, spec)
+        self.rows = window_starts(arrays.episode_ends, episodes, spec, mid_motion=arrays.mid_motion)
 
     def __len__(self) -> int:
         return len(self.rows)

@@ -252,7 +252,7 @@ def eval_ranking(
     task = get_task(task_name)
     k = planning["k"] or 100
     first = proposer() if proposer is not None else None
-    replays = ReplayLog(max([first.n_obs_steps] if first else [p.n_obs_steps for p in planners.values()])) if save_replays else None
+    replays = ReplayLog.for_proposer(first or next(iter(planners.values()))) if save_replays else None
     summary = {"scorers_run": recipes, "seeds": seeds, "k": k, "max_steps": max_steps,
                **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal, first, replays)}
     report = markdown(summary, f"Ranking probed: {', '.join(planners) or 'no scorer'}, K={k}, seeds {seeds}, {max_steps} steps")

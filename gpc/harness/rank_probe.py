@@ -41,7 +41,7 @@ class RankProbe:
         every = [first, *planners.values()]
         keys = [key for p in every for key in p.obs_keys] + [task.sim_key] + ([STATE_KEY] if replays else [])
         self.obs_keys = tuple(dict.fromkeys(keys))
-        self.n_obs_steps = max(p.n_obs_steps for p in every)
+        self.n_obs_steps = max([p.n_obs_steps for p in every] + ([replays.history] if replays else []))
         self.n_action_steps = first.n_action_steps
         self.rows: dict[str, list[tuple[float, bool, float]]] = {name: [] for name in planners}
         self.random_regret: list[float] = []

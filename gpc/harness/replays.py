@@ -4,13 +4,16 @@ A ranking planner asks its world model to tell apart K chunks from one state. Th
 hold one chunk per state (the one executed), so it learns where trajectories go more than what a different chunk
 would change. At each decision of the ranking probe (``gpc eval ranking --save-replays``) every proposal is already
 replayed from the exact simulator state; this keeps those replays. Each becomes one short episode laid out as a
-world-model window wants it (``WorldModelConfig``'s timeline)::
+world-model window wants it (``WorldModelConfig``'s timeline; here L = 3 observed states)::
 
-    states   | s_-1 s_0 | f_1 ... f_T |     the last H observed states, then the proposal's true futures
-    actions  | a_-1 c_1 | c_2 ... pad |     a_-1: the action executed before (moved s_-1 to s_0); c: the proposal
+    states   | s_-2 s_-1 s_0 | f_1 ... f_T |    the last L observed states, then the proposal's true futures
+    actions  | a_-2 a_-1 c_1 | c_2 ... pad |    a_-2, a_-1: the actions executed before; c: the proposal (T actions)
 
-so its windows supervise the step before (from a padded history, as at an episode's start) and the T replayed steps.
-Decisions without H - 1 executed actions before them (an episode's first) are skipped.
+A proposal runs from the current step (T = horizon - now), so L = n_obs_steps + now observed states make each
+replay exactly one window of a world model with the policy's history and horizon, whose first prediction (s_0 from
+a_-1) is of a step that truly happened. The store says its episodes begin mid-motion (``episode_starts``), so no
+window pads their start: a history repeating its first state would claim the scene was at rest. Decisions without
+L - 1 executed actions before them (an episode's first ones) are skipped.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.fresh import fresh
+from gpc.datasets.sequence import MID_MOTION
 from gpc.datasets.store import EpisodeStore
 from gpc.harness.files import check_out
 from gpc.tasks.base import ACTION_KEY, STATE_KEY, Task
@@ -40,13 +44,18 @@ class ReplayLog:
     """Mini-episodes of the replayed proposals, per episode in seed order, kept in memory until written."""
 
     def __init__(self, history: int) -> None:
-        self.history = history
-        self.executed: dict[int, deque[np.ndarray]] = {}  # seed -> the last H - 1 actions it executed
+        self.history = history  # L: observed states kept before each replay
+        self.executed: dict[int, deque[np.ndarray]] = {}  # seed -> the last L - 1 actions it executed
         self.episodes: list[tuple[int, dict[str, np.ndarray]]] = []
+
+    @classmethod
+    def for_proposer(cls, proposer: Any) -> ReplayLog:
+        """Replays one window long for a world model with ``proposer``'s history and horizon (the module docstring)."""
+        return cls(proposer.n_obs_steps + proposer.now)
 
     def add(self, seeds: Sequence[int], states: np.ndarray, chunks: np.ndarray, futures: np.ndarray,
             executed: np.ndarray) -> None:
-        """One decision of the episodes ``seeds``: their observed ``states`` (B, >=H, D), the proposals ``chunks``
+        """One decision of the episodes ``seeds``: their observed ``states`` (B, >=L, D), the proposals ``chunks``
         (B, K, T, A), their true ``futures`` (B, K, T, D), and the actions then executed (B, n, A)."""
         h = self.history
         for b, seed in enumerate(seeds):
@@ -68,7 +77,7 @@ class ReplayLog:
             by_seed.setdefault(seed, []).append(data)
         with fresh(path) as made:
             store = EpisodeStore.create(path, {"task": task.name, "collector": {"kind": "replays", **provenance},
-                                               "keys": [STATE_KEY, ACTION_KEY]})
+                                               "keys": [STATE_KEY, ACTION_KEY], "episode_starts": MID_MOTION})
             for seed in sorted(by_seed):  # one write per seed; scores unknown (`gpc data info` reads them off the states)
                 store.append_episodes(by_seed[seed], [seed] * len(by_seed[seed]))
             made.keep()
