@@ -17,7 +17,6 @@ import numpy as np
 
 from gpc.datasets.errors import DataError
 
-
 # A store's attribute ``episode_starts``: ``MID_MOTION`` where its episodes begin inside longer runs (no start padding).
 MID_MOTION = "mid-motion"
 

@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 from gpc.cli.main import app
-from gpc.datasets.store import EpisodeStore
 from gpc.datasets.sequence import window_starts
+from gpc.datasets.store import EpisodeStore
 from gpc.datasets.windows import load_stores
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
