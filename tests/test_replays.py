@@ -18,6 +18,7 @@ from gpc.datasets.windows import load_stores
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
+from gpc.models.world_models.eval_state import held_out_windows
 from gpc.models.world_models.module import WorldModelModule
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -68,6 +69,8 @@ def test_a_world_model_trains_on_the_replays_beside_its_data(ckpts, replays, tmp
     rows = window_starts(arrays.episode_ends, np.arange(4, arrays.n_episodes), spec, mid_motion=arrays.mid_motion)
     assert len(rows) == 2 * 2 * K * (18 - spec.horizon + 1) and rows[:, 2].min() == 0  # never padded at the start
     assert len(window_starts(arrays.episode_ends, np.arange(4), spec, mid_motion=arrays.mid_motion)) > 4
+    _, _, idx, _ = held_out_windows(wm, [replays], ["state", "action"], split="all")  # `gpc eval world-model`'s windows
+    assert len(idx) == 2 * 2 * K * (18 - spec.horizon + 1) and np.all(np.diff(idx, axis=1) == 1)  # none padded
     config = dataclasses.replace(wm.config, phase=2)
     run = train(WorldModelModule, config, [Path(ckpts["dir"]) / "expert.zarr", replays],
                 RunConfig(run_dir=tmp_path / "wm", max_steps=3, batch_size=16, progress=False, accelerator="cpu"),

@@ -57,15 +57,15 @@ class ReplayLog:
             executed: np.ndarray) -> None:
         """One decision of the episodes ``seeds``: their observed ``states`` (B, >=L, D), the proposals ``chunks``
         (B, K, T, A), their true ``futures`` (B, K, T, D), and the actions then executed (B, n, A)."""
-        h = self.history
+        h, k = self.history, chunks.shape[1]
         for b, seed in enumerate(seeds):
             before = self.executed.setdefault(int(seed), deque(maxlen=max(h - 1, 1)))
             if len(before) >= h - 1:
                 past = np.stack(list(before)[len(before) - (h - 1):]) if h > 1 else np.zeros((0, chunks.shape[-1]))
-                for k in range(chunks.shape[1]):
-                    actions = np.concatenate([past, chunks[b, k], chunks[b, k, -1:]]).astype(np.float32)
-                    state = np.concatenate([states[b, -h:], futures[b, k]]).astype(np.float32)
-                    self.episodes.append((int(seed), {STATE_KEY: state, ACTION_KEY: actions}))
+                actions = np.concatenate([np.broadcast_to(past, (k, *past.shape)), chunks[b], chunks[b, :, -1:]], axis=1)
+                state = np.concatenate([np.broadcast_to(states[b, -h:], (k, h, states.shape[-1])), futures[b]], axis=1)
+                actions, state = actions.astype(np.float32), state.astype(np.float32)
+                self.episodes.extend((int(seed), {STATE_KEY: state[i], ACTION_KEY: actions[i]}) for i in range(k))
             before.extend(np.asarray(executed[b]))
 
     def write(self, path: Path, task: Task, provenance: dict[str, Any]) -> int:

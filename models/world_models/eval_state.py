@@ -72,7 +72,8 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
     recorded seed and ratio over the same list of stores); ``"all"``: every episode (for a
     store the model never saw). ``held_out_of``: instead, the episodes another run held out, so two
     models meet on the same unseen episodes (``held_out_by``). ``episodes``: only the first N of them. Windows start every
-    ``stride`` steps (histories padded at episode starts, futures never); ``max_windows``:
+    ``stride`` steps (histories padded at episode starts, unless a store says its episodes begin mid-motion; futures
+    never); ``max_windows``:
     only that many, evenly spread.
     """
     if split not in SPLITS:
@@ -93,7 +94,7 @@ def held_out_windows(module: WorldModelModule, datasets: Sequence[str | os.PathL
         chosen = np.arange(arrays.n_episodes)
     if episodes is not None:
         chosen = chosen[:episodes]
-    rows = window_starts(arrays.episode_ends, chosen, WindowSpec(h + t, h - 1, 0))[::stride]
+    rows = window_starts(arrays.episode_ends, chosen, WindowSpec(h + t, h - 1, 0), mid_motion=arrays.mid_motion)[::stride]
     if max_windows is not None and len(rows) > max_windows:
         rows = rows[np.linspace(0, len(rows) - 1, max_windows).round().astype(int)]
     idx = np.stack([window_indices(r, h + t) for r in rows])
