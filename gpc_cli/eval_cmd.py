@@ -222,6 +222,7 @@ def eval_ranking(
 
     from gpc.cli.reports import parse_seeds
     from gpc.harness.files import check_file_out, write_atomic
+    from gpc.harness.ownership import digest_file
     from gpc.harness.rank_probe import markdown, probe_ranking
     from gpc.harness.replays import ReplayLog, check_replay_out
     from gpc.tasks import get_task
@@ -256,15 +257,17 @@ def eval_ranking(
     summary = {"scorers_run": recipes, "seeds": seeds, "k": k, "max_steps": max_steps,
                **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal, first, replays)}
     report = markdown(summary, f"Ranking probed: {', '.join(planners) or 'no scorer'}, K={k}, seeds {seeds}, {max_steps} steps")
-    if replays is not None and save_replays is not None:
-        n = replays.write(save_replays, task, {"policy": str(checkpoint), "k": k, "seeds": seeds, "max_steps": max_steps,
-                                                "goal": goal, "history": replays.history})
+    if replays is not None and save_replays is not None:  # the policy's weights by content, as `gpc record` names them
+        made_by = {"policy": str(checkpoint), "checkpoints": {str(checkpoint): digest_file(Path(checkpoint))}
+                   if Path(checkpoint).is_file() else {}}  # (a LeRobot policy directory is named by path alone)
+        n = replays.write(save_replays, task, {**made_by, "k": k, "seeds": seeds, "max_steps": max_steps, "goal": goal,
+                                                "history": replays.history})
         summary["replays"] = {"store": str(save_replays), "episodes": n}
     out.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(out.with_suffix(".json"), json.dumps(summary, indent=1))
     write_atomic(out, report)
     typer.echo(report)
-    if replays is not None:
+    if "replays" in summary:
         typer.echo(f"wrote {summary['replays']['episodes']} replayed proposals to {save_replays}")
     typer.echo(f"wrote {out} and {out.with_suffix('.json')}")
 

@@ -15,6 +15,7 @@ from gpc.cli.main import app
 from gpc.datasets.sequence import window_starts
 from gpc.datasets.store import EpisodeStore
 from gpc.datasets.windows import load_stores
+from gpc.harness.ownership import digest_file
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
 from gpc.models.training.trainer import train
@@ -43,6 +44,7 @@ def test_each_replay_starts_from_the_observed_history_and_chains_into_the_next_d
     store = EpisodeStore.open(replays)
     assert list(store.episode_seeds()) == [70000] * 2 * K + [70001] * 2 * K  # per seed, decision after decision
     assert store.attrs["collector"]["kind"] == "replays" and store.attrs["collector"]["k"] == K
+    assert store.attrs["collector"]["checkpoints"] == {ckpts["policy"]: digest_file(Path(ckpts["policy"]))}
     assert store.attrs["episode_starts"] == "mid-motion" and store.attrs["collector"]["history"] == 3
     episodes = [store.episode(i) for i in range(store.n_episodes)]
     policy = PolicyModule.load_from_checkpoint(ckpts["policy"]).config

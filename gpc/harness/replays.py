@@ -30,6 +30,7 @@ from gpc.datasets.fresh import fresh
 from gpc.datasets.sequence import MID_MOTION
 from gpc.datasets.store import EpisodeStore
 from gpc.harness.files import check_out
+from gpc.models.planning.planner import Planner
 from gpc.tasks.base import ACTION_KEY, STATE_KEY, Task
 
 
@@ -49,7 +50,7 @@ class ReplayLog:
         self.episodes: list[tuple[int, dict[str, np.ndarray]]] = []
 
     @classmethod
-    def for_proposer(cls, proposer: Any) -> ReplayLog:
+    def for_proposer(cls, proposer: Planner) -> ReplayLog:
         """Replays one window long for a world model with ``proposer``'s history and horizon (the module docstring)."""
         return cls(proposer.n_obs_steps + proposer.now)
 
