@@ -21,6 +21,7 @@ class DataConfig:
     paths: tuple[str, ...]
     obs_keys: tuple[str, ...] = ("state",)
     action_key: str = "action"
+    action_source: str | None = None  # read the actions from this array where a store has it (``expert_action``)
     horizon: int = 16  # steps per window (actions predicted)
     n_obs_steps: int = 2  # observation history kept at the window's start
     n_action_steps: int = 8  # actions executed per decision; sets the end padding
@@ -51,7 +52,7 @@ class EpisodeDataModule(L.LightningDataModule):
         super().__init__()
         self.config = config
         keys = tuple(dict.fromkeys(config.obs_keys + (config.action_key,)))
-        self.arrays = load_stores(config.paths, keys)
+        self.arrays = load_stores(config.paths, keys, {config.action_key: config.action_source} if config.action_source else None)
         lengths = self.arrays.episode_lengths()
         if lengths.max() + config.spec.pad_before + config.spec.pad_after < config.horizon:
             raise DataError(f"horizon {config.horizon} is longer than every episode (longest {lengths.max()})")

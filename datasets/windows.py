@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,8 +35,10 @@ class EpisodeArrays:
         return np.diff(np.concatenate([[0], self.episode_ends]))
 
 
-def load_stores(paths: Sequence[str | Path], keys: Sequence[str]) -> EpisodeArrays:
-    """Read ``keys`` of every store into memory; images are kept as uint8 to save memory."""
+def load_stores(paths: Sequence[str | Path], keys: Sequence[str], prefer: Mapping[str, str] | None = None) -> EpisodeArrays:
+    """Read ``keys`` of every store into memory; images are kept as uint8 to save memory. ``prefer`` reads a key
+    from another array where a store has it (``{"action": "expert_action"}``: a DART store's labels, and the
+    actions of stores whose expert ran without noise)."""
     if not paths:
         raise DataError("no dataset given (pass --dataset PATH)")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
@@ -46,7 +48,9 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str]) -> EpisodeArra
         if store.n_episodes == 0:
             raise DataError(f"{path}: holds no episodes")
         for key in keys:
-            arr = store.read(key)  # numbers, every one finite, from chunks that are all there (the store checks)
+            source = (prefer or {}).get(key, key)
+            # numbers, every one finite, from chunks that are all there (the store checks)
+            arr = store.read(source if source in store.keys else key)
             if key in IMAGE_KEYS and arr.dtype != np.uint8:  # (uint8 already is; rint would widen it)
                 arr = np.clip(np.rint(arr), 0, 255).astype(np.uint8)
             if parts[key] and parts[key][0].shape[1:] != arr.shape[1:]:

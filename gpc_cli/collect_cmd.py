@@ -37,14 +37,19 @@ def collect(
     images: bool = typer.Option(True, "--images/--no-images", help="Store the camera's frames (key img)."),
     max_steps: int | None = MaxSteps,
     overwrite: bool = Overwrite,
+    dart: float | None = typer.Option(None, "--dart", help="DART demonstrations: run the expert's actions with correlated noise of this share of the action range (e.g. 0.02), store its own as expert_action."),
+    dart_steps: float = typer.Option(4.0, "--dart-steps", help="With --dart: the noise's correlation time in control steps."),
     scale: dict | None = None,
 ) -> None:
     """Collect scripted episodes into a Zarr store; re-running the same command resumes it."""
     from gpc.harness.collection import CollectJob
+    from gpc.tasks.base import ActionNoise
 
     backend = backend_from_options(scale)
+    noise = ActionNoise(dart, dart_steps) if dart is not None else None
     _run(CollectJob(out=out, task=task, kind="explore" if explore else "expert", episodes=episodes, seed=seed,
-                    workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite, backend=backend))
+                    workers=workers, goal=goal, images=images, max_steps=max_steps, overwrite=overwrite, backend=backend,
+                    noise=noise))
 
 
 @with_backend_options

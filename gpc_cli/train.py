@@ -30,6 +30,7 @@ def policy(
     profile: str = typer.Option("cpu", "--profile", help="cpu (narrow U-Net, DDIM-10), paper (Diffusion Policy's sizes), tiny (tests)."),
     lr: float | None = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
     goal: str = typer.Option("fixed", "--goal", help="fixed: one goal for all episodes; random: the policy also reads each episode's goal (stores from `gpc collect --goal random`)."),
+    labels: str = typer.Option("action", "--labels", help="action: learn the actions that ran; expert_action: a DART store's labels (`gpc collect --dart`), the actions of stores without them."),
     options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
@@ -38,6 +39,7 @@ def policy(
     from gpc.models.policy.module import PolicyModule
 
     chosen = policy_profile(profile, obs, get_task(task).layout, goal=goal, lr=lr)
+    chosen = dataclasses.replace(chosen, config=dataclasses.replace(chosen.config, labels=labels))
     echo_result(train_component(PolicyModule, chosen.config, dataset, run_config(chosen, out, options)))
 
 

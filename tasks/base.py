@@ -31,6 +31,42 @@ def check_seeds(first: int, last: int, option: str) -> None:
     if last > MAX_SEED:
         raise ValueError(f"{option}: seed {last} is past {MAX_SEED}, the largest seed (2**32 - 1)")
 STATE_KEY, ACTION_KEY, GOAL_KEY, IMAGE_KEY = "state", "action", "goal", "img"  # the data keys every component shares
+EXPERT_ACTION_KEY = "expert_action"  # a noisy demonstration's labels: what the expert asked for (``action``: what ran)
+
+
+@dataclass(frozen=True)
+class ActionNoise:
+    """DART-style demonstrations (Laskey et al. 2017): the expert's actions run with noise added, so its
+    demonstrations visit the states a policy's own errors lead to, and record what the expert asked for there.
+
+    The noise is Gaussian, ``scale`` of each action entry's range, correlated over about ``steps`` control steps
+    (an Ornstein-Uhlenbeck process: one step's noise would be filtered out by a PD-tracked agent before it moved
+    anything), drawn from the episode's seed. A store keeps ``action`` as what ran (the world model learns from it)
+    and ``expert_action`` as the label a policy learns (``gpc train policy --labels expert_action``).
+    """
+
+    scale: float
+    steps: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.scale <= 0.5:
+            raise ValueError(f"--dart {self.scale}: the noise's share of the action range must lie in (0, 0.5]")
+        if not self.steps >= 1.0:
+            raise ValueError(f"--dart-steps {self.steps}: the noise's correlation must span at least 1 step")
+
+    def sampler(self, seed: int, low: np.ndarray, high: np.ndarray) -> Callable[[], np.ndarray]:
+        """The episode's noise, one draw per step: independent of the expert's own random stream."""
+        rng = np.random.default_rng([seed, 0xDA27])
+        sigma, rho = self.scale * (high - low), float(np.exp(-1.0 / self.steps))
+        state = rng.normal(0.0, 1.0, sigma.shape) * sigma
+
+        def draw() -> np.ndarray:
+            nonlocal state
+            out = state
+            state = rho * state + np.sqrt(1.0 - rho**2) * rng.normal(0.0, 1.0, sigma.shape) * sigma
+            return out
+
+        return draw
 
 
 class TaskEnv(Protocol):
@@ -64,7 +100,8 @@ class Task:
     make_env: Callable[[str], TaskEnv]  # goal mode -> a fresh environment
     observe: Callable[[TaskEnv, bool, bool], dict[str, np.ndarray]]  # (env, images, simulator state) -> one step's observation
     record_keys: Callable[[bool, str], list[str]]  # (images, goal mode) -> the keys ``record`` stores
-    record: Callable[[str, int, str, bool, int], tuple[dict[str, np.ndarray], EpisodeStats]]  # (collector, seed, goal, images, max steps)
+    # (collector, seed, goal, images, max steps, the expert's action noise or None) -> the arrays and their summary
+    record: Callable[[str, int, str, bool, int, ActionNoise | None], tuple[dict[str, np.ndarray], EpisodeStats]]
     collector_params: Callable[[str, int], dict[str, Any]]  # (collector, max steps) -> what a store records about it
     env_params: Callable[[str, int], dict[str, Any]]  # (goal mode, max steps) -> what a store records about the env
     simulator: Callable[[], Any]  # the true simulator as a world model (the ceiling planner ``gt-sim``)
@@ -103,6 +140,7 @@ class Task:
     def row_shape(self, key: str) -> tuple[int, ...] | None:
         """The shape one step of ``key`` must have in this task's stores (None: not fixed, e.g. image sizes)."""
         known = {STATE_KEY: (self.layout.state.dim,), ACTION_KEY: (self.layout.action.dim,),
+                 EXPERT_ACTION_KEY: (self.layout.action.dim,),
                  GOAL_KEY: (len(self.layout.pose_dims),), **self.row_shapes}
         return known.get(key)
 

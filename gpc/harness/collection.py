@@ -35,7 +35,7 @@ from gpc.harness.files import check_out, write_atomic
 from gpc.harness.ownership import claim
 from gpc.harness.stores import check_stores, foreign_files
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import COLLECTORS, Task, check_seeds
+from gpc.tasks.base import COLLECTORS, EXPERT_ACTION_KEY, ActionNoise, Task, check_seeds
 
 CLOSED_LOOP = "closed-loop"
 
@@ -58,6 +58,7 @@ class CollectJob:
     batch: int = 25  # closed-loop: episodes stepped in lockstep per controller call (gpc eval's default)
     threads: int = 1  # closed-loop: torch threads per process (as in ``gpc eval``, the episodes depend on it)
     backend: Any = None  # None: local processes; a ``ray_backend.RayOptions``: Ray actors (the same store)
+    noise: ActionNoise | None = None  # expert only: DART demonstrations (the labels stored as ``expert_action``)
 
     def __post_init__(self) -> None:
         task = get_task(self.task)  # raises for an unknown task
@@ -72,6 +73,8 @@ class CollectJob:
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be at least 1")
         check_seeds(self.seed, self.seed + self.episodes - 1, f"--seed {self.seed} with --episodes {self.episodes}")
+        if self.noise is not None and self.kind != "expert":
+            raise ValueError("--dart: action noise applies to the expert's demonstrations, not to --explore or gpc record")
 
     @property
     def steps(self) -> int:
@@ -94,11 +97,14 @@ class CollectJob:
                          "threads": self.threads, "max_steps": self.steps}
         else:
             collector = task.collector_params(self.kind, self.steps)
+        keys = task.record_keys(self.images, self.goal)
+        if self.noise is not None:  # a store with it names it: its actions are not the expert's own
+            collector, keys = {**collector, "dart": asdict(self.noise)}, sorted(keys + [EXPERT_ACTION_KEY])
         return {
             "task": self.task,
             "env": task.env_params(self.goal, self.steps),
             "collector": {"kind": self.kind, **collector},
-            "keys": task.record_keys(self.images, self.goal),
+            "keys": keys,
         }
 
 
@@ -114,10 +120,10 @@ class CollectSummary:
     contact_fraction: float | None
 
 
-def _run_one(args: tuple[str, str, int, str, bool, int]) -> tuple[dict[str, np.ndarray], dict]:
-    task_name, kind, seed, goal, images, max_steps = args
+def _run_one(args: tuple[str, str, int, str, bool, int, ActionNoise | None]) -> tuple[dict[str, np.ndarray], dict]:
+    task_name, kind, seed, goal, images, max_steps, noise = args
     task = get_task(task_name)
-    data, stats = task.record(kind, seed, goal, images, max_steps)
+    data, stats = task.record(kind, seed, goal, images, max_steps, noise)
     return data, asdict(stats)
 
 
@@ -272,7 +278,7 @@ def _collect_into(job: CollectJob, made: Fresh, on_start: Callable[[int], None] 
     todo = [s for s in job.seeds if s not in done]
     if on_start:
         on_start(len(job.seeds) - len(todo))
-    args = [(job.task, job.kind, s, job.goal, job.images, job.steps) for s in todo]
+    args = [(job.task, job.kind, s, job.goal, job.images, job.steps, job.noise) for s in todo]
     episodes = _closed_loop(job, todo) if job.kind == CLOSED_LOOP else _results(args, job.workers, job.backend)
     stats: list[dict] = []
     try:
@@ -352,7 +358,7 @@ def _score_collector(t: Task, kind: str, seeds: Sequence[int], goal: str, max_st
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
     for seed in res["seeds"]:
         t0 = time.perf_counter()
-        _, stats = t.record(kind, seed, goal, False, max_steps or t.max_episode_steps)
+        _, stats = t.record(kind, seed, goal, False, max_steps or t.max_episode_steps, None)
         row = {"scores": stats.score, "successes": stats.success, "steps": stats.steps, "seconds": time.perf_counter() - t0}
         for key, value in row.items():
             res[key].append(value)

@@ -19,6 +19,7 @@ from gpc.models.training.ema import EMAConfig
 
 PROFILES = ("cpu", "paper", "tiny")
 GOALS = ("fixed", "random")
+LABELS = ("action", "expert_action")  # what a policy learns its actions from (``PolicyConfig.labels``)
 
 
 @dataclass(frozen=True)
@@ -43,10 +44,15 @@ class PolicyConfig(PlainConfig, ReadsObservations):
     sampler: SamplerConfig = field(default_factory=SamplerConfig)  # default inference chain
     optim: OptimConfig = field(default_factory=OptimConfig)  # optimiser and learning-rate schedule
     ema: EMAConfig = field(default_factory=EMAConfig)  # EMA weights used for sampling and validation
+    # The array the actions are learned from: ``action`` (what ran) or ``expert_action`` (a DART store's labels:
+    # what the expert asked for under noise; a store without them gives its actions, its expert ran clean).
+    labels: str = "action"
 
     def __post_init__(self) -> None:
         if not self.task:
             raise ValueError("task must be named")
+        if self.labels not in LABELS:
+            raise ValueError(f"--labels {self.labels!r}: use one of {', '.join(LABELS)}")
         for name in ("horizon", "n_obs_steps", "n_action_steps", "action_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")

@@ -73,6 +73,7 @@ class PolicyModule(ObservationModule):
             paths=datasets, obs_keys=config.obs_keys, horizon=config.horizon, n_obs_steps=config.n_obs_steps,
             n_action_steps=config.n_action_steps, val_ratio=split[1], seed=split[0], batch_size=run.batch_size,
             num_workers=run.num_workers, state_spans=config.encoder.state_spans,
+            action_source=None if config.labels == ACTION_KEY else config.labels,
         )
 
     @classmethod

@@ -45,7 +45,7 @@ def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> t
     env.reset(seed=seed)
     policy.reset(seed)
     return record_loop(env, lambda: policy.act(env.sim, np.zeros(0)), lambda: observe(env, config.images), seed,
-                       config.max_steps, config.stop_on_success)
+                       config.max_steps, config.stop_on_success, noise=config.noise)
 
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:

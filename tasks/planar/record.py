@@ -14,7 +14,7 @@ from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
-from gpc.tasks.base import EpisodeStats
+from gpc.tasks.base import EXPERT_ACTION_KEY, ActionNoise, EpisodeStats
 from gpc.tasks.planar.scene import WORKSPACE
 
 Scene = TypeVar("Scene", contravariant=True)
@@ -36,18 +36,25 @@ class SteppedEnv(Protocol):
 
 def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callable[[], dict[str, np.ndarray]], seed: int,
                 max_steps: int, stop_on_success: bool, low: float | np.ndarray = 0.0,
-                high: float | np.ndarray = WORKSPACE) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+                high: float | np.ndarray = WORKSPACE, noise: ActionNoise | None = None) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Step ``env`` with ``act()``'s targets (clipped to ``[low, high]``, per entry where arrays: the planar
     workspace by default) for at most ``max_steps``; the arrays and their summary.
 
     ``terminated`` is success; demonstrations stop there (``stop_on_success``), exploration runs on. ``truncated``
-    (a simulation gone unstable) ends the episode with its score so far.
+    (a simulation gone unstable) ends the episode with its score so far. With ``noise`` the step runs the target
+    plus the noise (clipped), stored as ``action``, and the target itself is stored as ``expert_action``.
     """
     rows: dict[str, list[np.ndarray]] = {}
     best, success, n_contacts, contacts = 0.0, False, 0, []
+    draw: Callable[[], np.ndarray] | None = None
     for _ in range(max_steps):
-        action = np.clip(np.asarray(act(), dtype=np.float64), low, high)
+        action = label = np.clip(np.asarray(act(), dtype=np.float64), low, high)
+        if noise is not None:
+            draw = draw or noise.sampler(seed, np.broadcast_to(low, label.shape), np.broadcast_to(high, label.shape))
+            action = np.clip(label + draw(), low, high)
         step = {**observe(), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
+        if noise is not None:
+            step[EXPERT_ACTION_KEY] = label
         for key, value in step.items():
             rows.setdefault(key, []).append(value)
         _, reward, terminated, truncated, info = env.step(action)
@@ -75,6 +82,7 @@ class RecordConfig:
     max_steps: int = 300
     stop_on_success: bool = True  # demonstrations end at success; exploration runs on
     images: bool = True
+    noise: ActionNoise | None = None  # DART: the expert's actions run with this noise (``record_loop``)
 
     def __post_init__(self) -> None:
         if self.max_steps < 1:
@@ -102,7 +110,8 @@ class ScriptedCollectors:
     def params(self, kind: str, max_steps: int) -> dict[str, Any]:
         return scripted_params(self.policy(kind), kind, max_steps)
 
-    def record(self, kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    def record(self, kind: str, seed: int, goal: str, images: bool, max_steps: int,
+               noise: ActionNoise | None = None) -> tuple[dict[str, np.ndarray], EpisodeStats]:
         recorder = importlib.import_module(self.recorder)
-        config = recorder.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images)
+        config = recorder.RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images, noise=noise)
         return recorder.record_episode(self.policy(kind), seed, config)

@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, ObjectLook, StateLayout, TaskLayout
-from gpc.tasks.base import EpisodeStats, Task
+from gpc.tasks.base import ActionNoise, EpisodeStats, Task
 from gpc.tasks.planar import draw
 from gpc.tasks.planar.record import scripted_params
 from gpc.tasks.planar.scene import AGENT_RADIUS, CONTROL_HZ, K_P, K_V, SIM_HZ
@@ -74,8 +74,9 @@ def collector_params(kind: str, max_steps: int) -> dict[str, Any]:
     return scripted_params(scripted_policy(kind), kind, max_steps)
 
 
-def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    config = RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images, goal=goal)
+def record(kind: str, seed: int, goal: str, images: bool, max_steps: int,
+           noise: ActionNoise | None = None) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    config = RecordConfig(max_steps=max_steps, stop_on_success=kind == "expert", images=images, goal=goal, noise=noise)
     return record_episode(scripted_policy(kind), seed, config)
 
 

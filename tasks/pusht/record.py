@@ -24,17 +24,11 @@ ScriptedPolicy = planar_record.ScriptedPolicy[PushTSim]
 
 
 @dataclass(frozen=True)
-class RecordConfig:
-    """How long episodes run and what is stored."""
+class RecordConfig(planar_record.RecordConfig):
+    """How long episodes run (this task's length by default), what is stored, and the goal mode."""
 
     max_steps: int = MAX_EPISODE_STEPS
-    stop_on_success: bool = True  # demonstrations end at success; exploration runs on
-    images: bool = True
     goal: str = "fixed"
-
-    def __post_init__(self) -> None:
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps {self.max_steps}: must be at least 1")
 
 def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
     """One step's observation in the data layout (``state``, ``keypoint``, ``img``; with a random
@@ -61,7 +55,7 @@ def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> t
     env.reset(seed=seed)
     policy.reset(seed)
     return record_loop(env, lambda: policy.act(env.sim, env.goal_pose), lambda: observe(env, config.images), seed,
-                       config.max_steps, config.stop_on_success)
+                       config.max_steps, config.stop_on_success, noise=config.noise)
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray, goal_pose: np.ndarray = geometry.GOAL_POSE) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its block poses."""
