@@ -100,8 +100,9 @@ class Task:
     make_env: Callable[[str], TaskEnv]  # goal mode -> a fresh environment
     observe: Callable[[TaskEnv, bool, bool], dict[str, np.ndarray]]  # (env, images, simulator state) -> one step's observation
     record_keys: Callable[[bool, str], list[str]]  # (images, goal mode) -> the keys ``record`` stores
-    # (collector, seed, goal, images, max steps, the expert's action noise or None) -> the arrays and their summary
-    record: Callable[[str, int, str, bool, int, ActionNoise | None], tuple[dict[str, np.ndarray], EpisodeStats]]
+    # (collector, seed, goal, images, max steps[, the expert's action noise]) -> the arrays and their summary; called
+    # with five arguments unless `gpc collect --dart` gives noise (a task that takes none then is refused)
+    record: Callable[..., tuple[dict[str, np.ndarray], EpisodeStats]]
     collector_params: Callable[[str, int], dict[str, Any]]  # (collector, max steps) -> what a store records about it
     env_params: Callable[[str, int], dict[str, Any]]  # (goal mode, max steps) -> what a store records about the env
     simulator: Callable[[], Any]  # the true simulator as a world model (the ceiling planner ``gt-sim``)

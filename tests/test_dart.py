@@ -10,13 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from faults import inline, one_line
+from toy_task import REACH
 
 from gpc.datasets.datamodule import DataConfig, EpisodeDataModule
 from gpc.datasets.store import EpisodeStore
+from gpc.harness.collection import CollectJob, collect
 from gpc.models.policy.config import policy_profile
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.trainer import train
-from gpc.tasks import get_task
+from gpc.tasks import get_task, register_task
 from gpc.tasks.base import ActionNoise
 from gpc.tasks.swap.env import SwapEnv
 
@@ -84,6 +86,15 @@ def test_collect_names_the_noise_resumes_only_the_same_and_refuses_it_elsewhere(
     one_line(inline("collect", "--task", "swap", "--out", str(tmp_path / "x"), "--explore", "--dart", "0.01"), 2, "--dart")
     one_line(inline("collect", "--task", "swap", "--out", str(tmp_path / "y"), "--dart", "0.9"), 2, "--dart 0.9")
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_a_task_written_before_dart_collects_as_it_did_and_refuses_noise(tmp_path):
+    """A user's task whose ``record`` takes the five arguments it took before is called with five."""
+    register_task(REACH)
+    summary = collect(CollectJob(task="reach", out=tmp_path / "reach.zarr", episodes=2, images=False, max_steps=20))
+    assert summary.written == 2
+    with pytest.raises(ValueError, match="task reach's record takes no action noise"):
+        CollectJob(task="reach", out=tmp_path / "noisy.zarr", episodes=2, images=False, noise=NOISE)
 
 
 def test_a_policy_learns_the_labels_and_other_stores_give_their_actions(tmp_path):

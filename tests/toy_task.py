@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from gpc.datasets.layout import ActionBox, FrameLayout, ObjectLayout, StateLayout, TaskLayout
-from gpc.tasks.base import ActionNoise, EpisodeStats, Task
+from gpc.tasks.base import EpisodeStats, Task
 
 SIZE, SPEED, GOAL, SUCCESS = 100.0, 3.0, (70.0, 30.0), 3.0
 LAYOUT = TaskLayout(
@@ -83,11 +83,9 @@ def observe(env: ReachEnv, images: bool = False, sim: bool = False) -> dict[str,
     return obs
 
 
-def record(kind: str, seed: int, goal: str, images: bool, max_steps: int,
-           noise: ActionNoise | None = None) -> tuple[dict[str, np.ndarray], EpisodeStats]:
-    """The expert heads for the goal with a little noise and stops there; the explorer wanders to random targets."""
-    if noise is not None:
-        raise ValueError("--dart: the toy task's collectors add no action noise")
+def record(kind: str, seed: int, goal: str, images: bool, max_steps: int) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """The expert heads for the goal with a little noise and stops there; the explorer wanders to random targets
+    (five arguments, as a task written before `gpc collect --dart`: it is refused there)."""
     env, rng = ReachEnv(goal), np.random.default_rng(seed + 7)
     env.reset(seed=seed)
     rows: dict[str, list[np.ndarray]] = {}

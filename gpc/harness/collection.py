@@ -10,6 +10,7 @@ world model needs where the planner drives the scene, not only where the expert 
 
 from __future__ import annotations
 
+import inspect
 import json
 import multiprocessing as mp
 import os
@@ -75,6 +76,8 @@ class CollectJob:
         check_seeds(self.seed, self.seed + self.episodes - 1, f"--seed {self.seed} with --episodes {self.episodes}")
         if self.noise is not None and self.kind != "expert":
             raise ValueError("--dart: action noise applies to the expert's demonstrations, not to --explore or gpc record")
+        if self.noise is not None and len(inspect.signature(task.record).parameters) < 6:
+            raise ValueError(f"--dart: task {self.task}'s record takes no action noise (docs/new-task.md)")
 
     @property
     def steps(self) -> int:
@@ -123,7 +126,8 @@ class CollectSummary:
 def _run_one(args: tuple[str, str, int, str, bool, int, ActionNoise | None]) -> tuple[dict[str, np.ndarray], dict]:
     task_name, kind, seed, goal, images, max_steps, noise = args
     task = get_task(task_name)
-    data, stats = task.record(kind, seed, goal, images, max_steps, noise)
+    # a task written before --dart takes five arguments: it is called as it was
+    data, stats = task.record(kind, seed, goal, images, max_steps, *([noise] if noise is not None else []))
     return data, asdict(stats)
 
 
@@ -358,7 +362,7 @@ def _score_collector(t: Task, kind: str, seeds: Sequence[int], goal: str, max_st
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
     for seed in res["seeds"]:
         t0 = time.perf_counter()
-        _, stats = t.record(kind, seed, goal, False, max_steps or t.max_episode_steps, None)
+        _, stats = t.record(kind, seed, goal, False, max_steps or t.max_episode_steps)
         row = {"scores": stats.score, "successes": stats.success, "steps": stats.steps, "seconds": time.perf_counter() - t0}
         for key, value in row.items():
             res[key].append(value)
