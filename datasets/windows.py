@@ -47,10 +47,11 @@ def load_stores(paths: Sequence[str | Path], keys: Sequence[str], prefer: Mappin
         store = EpisodeStore.open(path)
         if store.n_episodes == 0:
             raise DataError(f"{path}: holds no episodes")
+        held = set(store.keys) if prefer else set()  # listed once per store, only when a key may come from elsewhere
         for key in keys:
             source = (prefer or {}).get(key, key)
             # numbers, every one finite, from chunks that are all there (the store checks)
-            arr = store.read(source if source in store.keys else key)
+            arr = store.read(source if source in held else key)
             if key in IMAGE_KEYS and arr.dtype != np.uint8:  # (uint8 already is; rint would widen it)
                 arr = np.clip(np.rint(arr), 0, 255).astype(np.uint8)
             if parts[key] and parts[key][0].shape[1:] != arr.shape[1:]:

@@ -49,12 +49,11 @@ def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callabl
     draw: Callable[[], np.ndarray] | None = None
     for _ in range(max_steps):
         action = label = np.clip(np.asarray(act(), dtype=np.float64), low, high)
-        if noise is not None:
+        labels: dict[str, np.ndarray] = {}
+        if noise is not None:  # the sampler is made at the first step, which gives the action's width
             draw = draw or noise.sampler(seed, np.broadcast_to(low, label.shape), np.broadcast_to(high, label.shape))
-            action = np.clip(label + draw(), low, high)
-        step = {**observe(), "action": action, "n_contacts": np.array([n_contacts], np.float64)}
-        if noise is not None:
-            step[EXPERT_ACTION_KEY] = label
+            action, labels = np.clip(label + draw(), low, high), {EXPERT_ACTION_KEY: label}
+        step = {**observe(), "action": action, "n_contacts": np.array([n_contacts], np.float64), **labels}
         for key, value in step.items():
             rows.setdefault(key, []).append(value)
         _, reward, terminated, truncated, info = env.step(action)
