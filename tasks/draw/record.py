@@ -15,8 +15,7 @@ from gpc.tasks.draw import geometry
 from gpc.tasks.draw.env import MAX_EPISODE_STEPS, DrawEnv
 from gpc.tasks.draw.sim import DrawSim
 from gpc.tasks.planar import record as planar_record
-from gpc.tasks.planar.record import record_loop
-from gpc.tasks.planar.sim_model import SIM_KEY
+from gpc.tasks.planar.record import episode_maxima, record_from_reset, with_extras
 
 ScriptedPolicy = planar_record.ScriptedPolicy[DrawSim]
 
@@ -31,21 +30,14 @@ class RecordConfig(planar_record.RecordConfig):
 def observe(env: DrawEnv, images: bool = True, sim: bool = False) -> dict[str, np.ndarray]:
     """One step's observation in the data layout; ``sim`` adds the full scene (pen, triangle, ink grid; never
     recorded) that the ground-truth world model restores from."""
-    obs = {"state": env.sim.state().astype(np.float32)}
-    if images:
-        obs["img"] = env.render()
-    if sim:
-        obs[SIM_KEY] = env.sim.vector()
-    return obs
+    return with_extras({"state": env.sim.state().astype(np.float32)}, env, images, sim)
 
 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
     env = DrawEnv(obs_type="state")
-    env.reset(seed=seed)
-    policy.reset(seed)
-    return record_loop(env, lambda: policy.act(env.sim, np.zeros(0)), lambda: observe(env, config.images), seed,
-                       config.max_steps, config.stop_on_success, noise=config.noise)
+    return record_from_reset(env, policy, lambda: policy.act(env.sim, np.zeros(0)), lambda: observe(env, config.images),
+                             seed, config)
 
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
@@ -54,6 +46,4 @@ def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
     A store holds what was observed before each action, so an episode's last stroke is not in it: the score of a
     recorded episode can fall short of the one its recording reported by that stroke.
     """
-    rewards = geometry.f1_from_summary(np.asarray(states, dtype=np.float64)[:, 8:])
-    starts = np.concatenate([[0], np.asarray(episode_ends)[:-1]]).astype(int)
-    return np.array([rewards[s:int(e)].max() for s, e in zip(starts, episode_ends)])
+    return episode_maxima(geometry.f1_from_summary(np.asarray(states, dtype=np.float64)[:, 8:]), episode_ends)

@@ -16,6 +16,7 @@ import numpy as np
 
 from gpc.tasks.base import EXPERT_ACTION_KEY, ActionNoise, EpisodeStats
 from gpc.tasks.planar.scene import WORKSPACE
+from gpc.tasks.planar.sim_model import SIM_KEY
 
 Scene = TypeVar("Scene", contravariant=True)
 
@@ -32,6 +33,16 @@ class SteppedEnv(Protocol):
     """A reset environment whose ``step`` reports the step's contacts as ``info["n_contacts"]``."""
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]: ...
+
+
+class ResettableEnv(SteppedEnv, Protocol):
+    def reset(self, *, seed: int | None = None) -> Any: ...
+
+
+class Seeded(Protocol):
+    """A controller that restarts from a seed (every scripted one: its draws come from the episode's seed)."""
+
+    def reset(self, seed: int) -> None: ...
 
 
 def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callable[[], dict[str, np.ndarray]], seed: int,
@@ -65,6 +76,32 @@ def record_loop(env: SteppedEnv, act: Callable[[], np.ndarray], observe: Callabl
             break
     data = {k: np.stack(v).astype(np.uint8 if k == "img" else np.float32) for k, v in rows.items()}
     return data, EpisodeStats(seed, len(data["action"]), float(best), bool(success), float(np.mean(contacts)))
+
+
+def record_from_reset(env: ResettableEnv, policy: Seeded, act: Callable[[], np.ndarray],
+                      observe: Callable[[], dict[str, np.ndarray]], seed: int, config: RecordConfig,
+                      low: float | np.ndarray = 0.0, high: float | np.ndarray = WORKSPACE) -> tuple[dict[str, np.ndarray], EpisodeStats]:
+    """Reset ``env`` and ``policy`` to ``seed``, then ``record_loop`` as ``config`` says: a task's ``record_episode``."""
+    env.reset(seed=seed)
+    policy.reset(seed)
+    return record_loop(env, act, observe, seed, config.max_steps, config.stop_on_success, low, high, noise=config.noise)
+
+
+def with_extras(obs: dict[str, np.ndarray], env: Any, images: bool, sim: bool) -> dict[str, np.ndarray]:
+    """``obs`` with the camera's frame (``img``) and the full simulator state (``SIM_KEY``: never recorded, the
+    ground-truth world model restores from it) where asked: the tail of every task's ``observe``."""
+    if images:
+        obs["img"] = env.render()
+    if sim:
+        obs[SIM_KEY] = env.sim.vector()
+    return obs
+
+
+def episode_maxima(rewards: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
+    """Each episode's score, its largest per-step reward; ``episode_ends`` as a store's (exclusive, cumulative)."""
+    ends = np.asarray(episode_ends).astype(int)
+    starts = np.concatenate([[0], ends[:-1]])
+    return np.array([np.max(rewards[s:e]) for s, e in zip(starts, ends)])
 
 
 def scripted_params(policy: object, kind: str, max_steps: int) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from gpc.tasks.base import EpisodeStats
 from gpc.tasks.planar import record as planar_record
-from gpc.tasks.planar.record import record_loop
+from gpc.tasks.planar.record import episode_maxima, record_from_reset
 from gpc.tasks.pusht import geometry
 from gpc.tasks.pusht.env import MAX_EPISODE_STEPS, PushTEnv
 from gpc.tasks.pusht.sim import PushTSim
@@ -52,16 +52,10 @@ def observe(env: PushTEnv, images: bool = True, sim: bool = False) -> dict[str, 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary."""
     env = PushTEnv(obs_type="state", goal=config.goal)
-    env.reset(seed=seed)
-    policy.reset(seed)
-    return record_loop(env, lambda: policy.act(env.sim, env.goal_pose), lambda: observe(env, config.images), seed,
-                       config.max_steps, config.stop_on_success, noise=config.noise)
+    return record_from_reset(env, policy, lambda: policy.act(env.sim, env.goal_pose), lambda: observe(env, config.images),
+                             seed, config)
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray, goal_pose: np.ndarray = geometry.GOAL_POSE) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its block poses."""
-    scores, start = [], 0
-    for end in episode_ends:
-        poses = states[start:end, 2:5]
-        scores.append(max(geometry.reward_from_coverage(geometry.coverage(p, goal_pose)) for p in poses))
-        start = int(end)
-    return np.array(scores)
+    rewards = np.array([geometry.reward_from_coverage(geometry.coverage(p, goal_pose)) for p in states[:, 2:5]])
+    return episode_maxima(rewards, episode_ends)

@@ -14,8 +14,7 @@ import numpy as np
 
 from gpc.tasks.base import EpisodeStats
 from gpc.tasks.planar import record as planar_record
-from gpc.tasks.planar.record import record_loop
-from gpc.tasks.planar.sim_model import SIM_KEY
+from gpc.tasks.planar.record import episode_maxima, record_from_reset, with_extras
 from gpc.tasks.stack import geometry
 from gpc.tasks.stack.env import MAX_EPISODE_STEPS, StackEnv
 from gpc.tasks.stack.scene import ACTION_HIGH, ACTION_LOW, StackSim
@@ -41,25 +40,17 @@ def observe(env: StackEnv, images: bool = True, sim: bool = False) -> dict[str, 
     ground-truth world model restores from."""
     state = env.sim.state()
     obs = {"state": state.astype(np.float32), "goal": state[geometry.BLUE][:2].astype(np.float32)}
-    if images:
-        obs["img"] = env.render()
-    if sim:
-        obs[SIM_KEY] = env.sim.vector()
-    return obs
+    return with_extras(obs, env, images, sim)
 
 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary (``contact_fraction``:
     the share of steps with any gripper-cube or cube-cube contact)."""
     env = StackEnv(obs_type="state")
-    env.reset(seed=seed)
-    policy.reset(seed)
-    return record_loop(env, lambda: policy.act(env.sim), lambda: observe(env, config.images), seed, config.max_steps,
-                       config.stop_on_success, ACTION_LOW, ACTION_HIGH, noise=config.noise)
+    return record_from_reset(env, policy, lambda: policy.act(env.sim), lambda: observe(env, config.images), seed, config,
+                             ACTION_LOW, ACTION_HIGH)
 
 
 def episode_scores(states: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its states."""
-    rewards = geometry.reward(states)
-    starts = np.concatenate([[0], np.asarray(episode_ends)[:-1]]).astype(int)
-    return np.array([rewards[s:int(e)].max() for s, e in zip(starts, episode_ends)])
+    return episode_maxima(geometry.reward(states), episode_ends)

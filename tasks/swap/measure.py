@@ -6,13 +6,10 @@ demonstrations do; exploration episodes run all their steps).
 
 from __future__ import annotations
 
-import argparse
 import json
-import time
 from collections.abc import Sequence
 
-import numpy as np
-
+from gpc.tasks.measure import expert_summary, parse_seeds
 from gpc.tasks.swap.env import MAX_EPISODE_STEPS
 from gpc.tasks.swap.expert import SwapExpert
 from gpc.tasks.swap.explore import ExploreConfig, evaluate_explore
@@ -22,26 +19,14 @@ from gpc.tasks.swap.record import RecordConfig, record_episode
 def evaluate_expert(seeds: Sequence[int], max_steps: int = MAX_EPISODE_STEPS) -> dict:
     """Mean score (an episode's max reward), success rate, steps and the seeds it missed."""
     config = RecordConfig(max_steps=max_steps, images=False)
-    stats = []
-    t0 = time.perf_counter()
-    for seed in seeds:
-        stats.append(record_episode(SwapExpert(), int(seed), config)[1])
-    return {"episodes": len(stats), "mean_score": float(np.mean([s.score for s in stats])),
-            "success_rate": float(np.mean([s.success for s in stats])), "mean_steps": float(np.mean([s.steps for s in stats])),
-            "max_steps_used": int(max(s.steps for s in stats)), "contact_fraction": float(np.mean([s.contact_fraction for s in stats])),
-            "misses": [{"seed": s.seed, "score": s.score} for s in stats if not s.success], "seconds": time.perf_counter() - t0}
+    return expert_summary(lambda seed: record_episode(SwapExpert(), seed, config)[1], seeds)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="100000:100100", help="START:STOP")
-    parser.add_argument("--explore-seeds", default=None, help="START:STOP for exploration (default: --seeds)")
-    args = parser.parse_args(argv)
-    start, stop = (int(x) for x in args.seeds.split(":"))
-    e_start, e_stop = (int(x) for x in (args.explore_seeds or args.seeds).split(":"))
-    explore = {mode: evaluate_explore(range(e_start, e_stop), ExploreConfig(mode=mode)) for mode in ("mixed", "pushes", "perturbed")}
+    seeds, explore_seeds = parse_seeds(__doc__.splitlines()[0], argv)
+    explore = {mode: evaluate_explore(explore_seeds, ExploreConfig(mode=mode)) for mode in ("mixed", "pushes", "perturbed")}
     keep = ("steps", "contact_fraction", "agent_cube", "agent_sphere", "cube_sphere", "moving")
-    print(json.dumps({"expert": evaluate_expert(range(start, stop)), "seeds": args.seeds,
+    print(json.dumps({"expert": evaluate_expert(seeds), "seeds": f"{seeds.start}:{seeds.stop}",
                       "explore": {mode: {k: r[k] for k in keep} for mode, r in explore.items()}}, indent=1))
 
 

@@ -15,8 +15,7 @@ import numpy as np
 
 from gpc.tasks.base import EpisodeStats
 from gpc.tasks.planar import record as planar_record
-from gpc.tasks.planar.record import record_loop
-from gpc.tasks.planar.sim_model import SIM_KEY
+from gpc.tasks.planar.record import episode_maxima, record_from_reset, with_extras
 from gpc.tasks.swap import geometry
 from gpc.tasks.swap.env import MAX_EPISODE_STEPS, SwapEnv
 from gpc.tasks.swap.sim import SwapSim
@@ -38,25 +37,17 @@ def observe(env: SwapEnv, images: bool = True, sim: bool = False) -> dict[str, n
     obs = {"state": state.astype(np.float32), "goal": env.goal.astype(np.float32),
            "keypoint": geometry.keypoints(state).astype(np.float32),
            "goal_keypoint": env.goal.reshape(2, 2).astype(np.float32)}  # the targets as points: what a keypoint policy reads
-    if images:
-        obs["img"] = env.render()
-    if sim:
-        obs[SIM_KEY] = env.sim.vector()
-    return obs
+    return with_extras(obs, env, images, sim)
 
 
 def record_episode(policy: ScriptedPolicy, seed: int, config: RecordConfig) -> tuple[dict[str, np.ndarray], EpisodeStats]:
     """Run ``policy`` from the env's reset for ``seed``; return the arrays and their summary (``contact_fraction``:
     the share of steps with any agent-object or object-object contact)."""
     env = SwapEnv(obs_type="state")
-    env.reset(seed=seed)
-    policy.reset(seed)
-    return record_loop(env, lambda: policy.act(env.sim, env.goal), lambda: observe(env, config.images), seed,
-                       config.max_steps, config.stop_on_success, noise=config.noise)
+    return record_from_reset(env, policy, lambda: policy.act(env.sim, env.goal), lambda: observe(env, config.images), seed,
+                             config)
 
 
 def episode_scores(states: np.ndarray, goals: np.ndarray, episode_ends: np.ndarray) -> np.ndarray:
     """Score (max reward) of each recorded episode, recomputed from its states and goals."""
-    rewards = geometry.reward_from_coverages(geometry.coverages(states, goals))
-    starts = np.concatenate([[0], np.asarray(episode_ends)[:-1]]).astype(int)
-    return np.array([rewards[s:int(e)].max() for s, e in zip(starts, episode_ends)])
+    return episode_maxima(geometry.reward_from_coverages(geometry.coverages(states, goals)), episode_ends)
