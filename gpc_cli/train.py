@@ -31,6 +31,7 @@ def policy(
     lr: float | None = typer.Option(None, "--lr", min=0.0, help="Peak learning rate (default: the profile's, Diffusion Policy's 1e-4)."),
     goal: str = typer.Option("fixed", "--goal", help="fixed: one goal for all episodes; random: the policy also reads each episode's goal (stores from `gpc collect --goal random`)."),
     labels: str = typer.Option("action", "--labels", help="action: learn the actions that ran; expert_action: a DART store's labels (`gpc collect --dart`), the actions of stores without them."),
+    obs_mlp: str = typer.Option("", "--obs-mlp", help="Widths of an MLP over each step's observations, e.g. 256,256 (default: none, as Diffusion Policy): lets a policy that reads a goal relate it to the scene before the U-Net."),
     options: dict | None = None,
 ) -> None:
     """Train Diffusion Policy on Zarr stores; best and last checkpoints land in OUT/checkpoints."""
@@ -38,7 +39,11 @@ def policy(
     from gpc.models.policy.config import policy_profile
     from gpc.models.policy.module import PolicyModule
 
-    chosen = policy_profile(profile, obs, get_task(task).layout, goal=goal, lr=lr)
+    try:
+        widths = tuple(int(w) for w in obs_mlp.split(",") if w.strip())
+    except ValueError:
+        raise typer.BadParameter(f"{obs_mlp!r}: use widths joined by commas, e.g. 256,256", param_hint="--obs-mlp") from None
+    chosen = policy_profile(profile, obs, get_task(task).layout, goal=goal, lr=lr, mlp=widths)
     chosen = dataclasses.replace(chosen, config=dataclasses.replace(chosen.config, labels=labels))
     echo_result(train_component(PolicyModule, chosen.config, dataset, run_config(chosen, out, options)))
 

@@ -193,3 +193,28 @@ def test_encoders_share_one_interface():
         assert enc(batch).shape == (2, 2, enc.feature_dim)
         dims[obs] = enc.feature_dim
     assert dims == {"state": 5, "keypoints": 20, "image": 10}
+
+
+def test_an_observation_mlp_forms_features_that_depend_on_goal_and_state_together():
+    shapes = (("state", (3,)), ("goal", (2,)))
+    plain = ObsEncoder(EncoderConfig("state", shapes, goal=True))
+    assert plain.feature_dim == 5 and not list(plain.parameters())  # Diffusion Policy's: the features as read
+    torch.manual_seed(0)
+    enc = ObsEncoder(EncoderConfig("state", shapes, goal=True, mlp=(16, 8)))
+    assert enc.feature_dim == 8 and [type(m).__name__ for m in enc.mlp] == ["Linear", "Mish", "Linear"]
+
+    def features(state: float, goal: float) -> torch.Tensor:
+        return enc({"state": torch.full((1, 1, 3), state), "goal": torch.full((1, 1, 2), goal)})[0, 0]
+
+    # Not additive in state and goal (a plain linear map of the joined features would be): the interaction the
+    # U-Net's per-block linear FiLM maps cannot form by themselves.
+    interaction = features(1.0, 1.0) - features(1.0, -1.0) - features(-1.0, 1.0) + features(-1.0, -1.0)
+    assert interaction.abs().max() > 1e-3
+    # Checkpoints written before the option load as they were: no MLP.
+    cfg = policy_profile("cpu", "state", LAYOUT, mlp=(32,)).config
+    assert cfg.encoder.mlp == (32,)
+    legacy = cfg.to_dict()
+    del legacy["encoder"]["mlp"]
+    assert PolicyConfig.from_dict(legacy).encoder.mlp == ()
+    with pytest.raises(ValueError, match="mlp widths"):
+        EncoderConfig("state", mlp=(0,))

@@ -61,6 +61,10 @@ class EncoderConfig:
     image_norm: str = "group"  # group (gpc, Diffusion Policy) or batch (LeRobot's current default) in the ResNet
     image_feature_relu: bool = False  # a ReLU after the image features' linear map (LeRobot's encoder has one)
     state_spans: tuple[tuple[int, float, float], ...] = ()  # the task's StateLayout.spans: the state normaliser spans them
+    # Widths of an MLP over each step's joined features (); none, as Diffusion Policy's. Where a goal is read beside
+    # the state, the U-Net sees the observation only through a linear map per block (FiLM): an MLP can first form
+    # what depends on both (where the target is from the object).
+    mlp: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.obs_type not in OBS_KEYS:
@@ -70,6 +74,8 @@ class EncoderConfig:
         for name in ("agent_dims", "crop_size", "resnet_width", "spatial_keypoints", "image_feature_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} {getattr(self, name)}: must be at least 1")
+        if any(w < 1 for w in self.mlp):
+            raise ValueError(f"mlp widths {self.mlp}: each must be at least 1")
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -158,6 +164,11 @@ class ObsEncoder(nn.Module):
             parts += [VectorPart(key, config.shape(key)) for key in GOAL_KEYS[config.obs_type]]
         self.parts = nn.ModuleList(parts)
         self.feature_dim = sum(p.out_dim for p in parts)
+        layers: list[nn.Module] = []
+        for width in config.mlp:
+            layers += [nn.Linear(self.feature_dim, width), nn.Mish()]
+            self.feature_dim = width
+        self.mlp = nn.Sequential(*layers[:-1])  # ends linear: the U-Net's FiLM maps begin with a Mish
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -165,7 +176,7 @@ class ObsEncoder(nn.Module):
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         parts = cast(Iterable[VectorPart | ImagePart], self.parts)  # what __init__ put there
-        return torch.cat([part(obs[part.key]) for part in parts], dim=-1)
+        return self.mlp(torch.cat([part(obs[part.key]) for part in parts], dim=-1))
 
 
 def normalized_obs(normalizer: Any, keys: Iterable[str], obs: Mapping[str, Any], device: Any, reader: str) -> dict[str, torch.Tensor]:

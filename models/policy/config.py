@@ -66,11 +66,12 @@ class PolicyConfig(PlainConfig, ReadsObservations):
 
 
 def policy_profile(name: str, obs_type: str, layout: TaskLayout, goal: str = "fixed",
-                   lr: float | None = None) -> Profile[PolicyConfig]:
+                   lr: float | None = None, mlp: tuple[int, ...] = ()) -> Profile[PolicyConfig]:
     """``cpu``: narrow U-Net, DDIM-10, trains on 2 cores; ``paper``: Diffusion Policy's sizes,
     DDPM-100; ``tiny``: seconds-long runs for tests. The task's layout fills the action width and
     where the agent sits in the state; ``goal="random"``: the policy also reads each episode's goal
-    (stores collected with random goals); ``lr``: another peak learning rate than the profile's."""
+    (stores collected with random goals); ``lr``: another peak learning rate than the profile's; ``mlp``: widths of
+    an MLP over each step's observation features (``EncoderConfig.mlp``)."""
     if goal not in GOALS:
         raise ValueError(f"--goal {goal!r}: use one of {', '.join(GOALS)}")
     image = obs_type == "image"
@@ -98,7 +99,7 @@ def policy_profile(name: str, obs_type: str, layout: TaskLayout, goal: str = "fi
             raise ValueError(f"obs {obs_type!r} reads the agent's position; task {layout.name} has none in its state")
         encoder = dataclasses.replace(encoder, agent_dims=len(layout.state.agent_xy))
     encoder = dataclasses.replace(encoder, goal=goal == "random" or layout.goal is None,  # a goal drawn per episode is read
-                                  state_spans=layout.state.spans)
+                                  state_spans=layout.state.spans, mlp=tuple(mlp))
     optim = optim if lr is None else dataclasses.replace(optim, lr=lr)
     policy = PolicyConfig(task=layout.name, action_dim=layout.action.dim, encoder=encoder, unet=unet, sampler=sampler,
                           optim=optim)
