@@ -31,15 +31,19 @@ def parse_seeds(description: str, argv: Sequence[str] | None) -> tuple[range, ra
     return seed_range(args.seeds), seed_range(args.explore_seeds or args.seeds)
 
 
-def expert_summary(record: Callable[[int], EpisodeStats], seeds: Iterable[int]) -> dict[str, Any]:
-    """Run ``record`` on each seed: mean and least score (an episode's max reward), success rate, mean and most
-    steps, contact share, the seeds missed and the seconds taken."""
-    t0 = time.perf_counter()
-    stats = [record(int(seed)) for seed in seeds]
+def summarise(stats: Sequence[EpisodeStats]) -> dict[str, Any]:
+    """Scripted episodes in figures: mean and least score (an episode's max reward), success rate, mean and most
+    steps, contact share and the seeds missed (also what `gpc eval-expert` writes)."""
     scores = np.array([s.score for s in stats])
     return {"episodes": len(stats), "mean_score": float(scores.mean()), "min_score": float(scores.min()),
             "success_rate": float(np.mean([s.success for s in stats])), "mean_steps": float(np.mean([s.steps for s in stats])),
             "max_steps_used": int(max(s.steps for s in stats)),
             "contact_fraction": float(np.mean([s.contact_fraction for s in stats])),
-            "misses": [{"seed": s.seed, "score": s.score} for s in stats if not s.success],
-            "seconds": time.perf_counter() - t0}
+            "misses": [{"seed": s.seed, "score": s.score} for s in stats if not s.success]}
+
+
+def expert_summary(record: Callable[[int], EpisodeStats], seeds: Iterable[int]) -> dict[str, Any]:
+    """``summarise`` of ``record`` run on each seed, with the seconds taken."""
+    t0 = time.perf_counter()
+    stats = [record(int(seed)) for seed in seeds]
+    return {**summarise(stats), "seconds": time.perf_counter() - t0}

@@ -31,6 +31,11 @@ def test_solves_fixed_goal_seeds() -> None:
     assert res["success_rate"] >= 0.6
     assert len(res["scores"]) == len(res["successes"]) == len(res["steps"]) == len(res["seconds"]) == 12
     assert res["median_seconds"] < 3.0
+    # The per-task measure scripts' figures (tasks/measure.py summarise), from the same episodes.
+    assert res["min_score"] == min(res["scores"]) and res["max_steps_used"] == max(res["steps"])
+    assert res["mean_steps"] == pytest.approx(np.mean(res["steps"]))
+    assert res["misses"] == [{"seed": seed, "score": score}
+                             for seed, score, ok in zip(res["seeds"], res["scores"], res["successes"]) if not ok]
 
 
 def test_solves_random_goals() -> None:

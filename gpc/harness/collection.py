@@ -37,6 +37,7 @@ from gpc.harness.ownership import claim
 from gpc.harness.stores import check_stores, foreign_files
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import COLLECTORS, EXPERT_ACTION_KEY, ActionNoise, Task, check_seeds
+from gpc.tasks.measure import summarise
 
 CLOSED_LOOP = "closed-loop"
 
@@ -360,9 +361,11 @@ def evaluate_collector(task: str, kind: str, seeds: Sequence[int], goal: str = "
 def _score_collector(t: Task, kind: str, seeds: Sequence[int], goal: str, max_steps: int | None,
                      on_episode: Callable[[dict], None] | None, out: Path | None) -> dict[str, Any]:
     res: dict[str, Any] = {"seeds": [int(s) for s in seeds], "scores": [], "successes": [], "steps": [], "seconds": []}
+    episodes = []
     for seed in res["seeds"]:
         t0 = time.perf_counter()
         _, stats = t.record(kind, seed, goal, False, max_steps or t.max_episode_steps)
+        episodes.append(stats)
         row = {"scores": stats.score, "successes": stats.success, "steps": stats.steps, "seconds": time.perf_counter() - t0}
         for key, value in row.items():
             res[key].append(value)
@@ -373,8 +376,7 @@ def _score_collector(t: Task, kind: str, seeds: Sequence[int], goal: str, max_st
         except interrupts.Interrupted as stop:
             stop.kept = f"{len(res['scores'])} of {len(res['seeds'])} episodes were scored; nothing is written"
             raise
-    res.update(mean_score=float(np.mean(res["scores"])), success_rate=float(np.mean(res["successes"])),
-               median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
+    res.update(summarise(episodes), median_seconds=float(np.median(res["seconds"])), max_seconds=float(np.max(res["seconds"])))
     res["markdown"] = (
         f"| seeds | goal | mean score | success rate | s/episode p50 | s/episode max |\n|---|---|---|---|---|---|\n"
         f"| {res['seeds'][0]}..{res['seeds'][-1]} ({len(res['seeds'])}) | {goal} | {res['mean_score']:.3f} | "

@@ -36,6 +36,8 @@ class SteppedEnv(Protocol):
 
 
 class ResettableEnv(SteppedEnv, Protocol):
+    """A ``SteppedEnv`` that starts an episode from a seed (Gymnasium's ``reset``)."""
+
     def reset(self, *, seed: int | None = None) -> Any: ...
 
 
