@@ -96,6 +96,9 @@ else
   WM_DATA := --dataset $(RUN_DIR)/expert.zarr --dataset $(RUN_DIR)/explore.zarr
   RESULTS ?= results/$(TASK)-$(PROFILE)$(GOAL_TAG)$(PLAN_TAG)
 endif
+# BC and the ceiling read no world model, so every WM_PLAN's and EXPLORE's table shares them: one BC and one ceiling
+# per profile and goal (a RESULTS given on the command line holds its own).
+SHARED := $(if $(filter file,$(origin RESULTS)),results/$(TASK)-$(PROFILE)$(GOAL_TAG),$(RESULTS))
 
 # The paper's vision table (Table II: its K and M) and its ceiling, the true simulator ranking the image policy's proposals.
 PAPER_VPLANNERS := vrank-K50 vrank-K100 vopt-M25 vrank-opt-10x25
@@ -395,15 +398,16 @@ endef
 	held.discard(want); held and sys.exit(f"{folder} holds results for seeds {held.pop()}, not {want} (SEEDS): " \
 	"give another RESULTS, or remove that folder")' $(@D) $(patsubst .seeds-%,%,$(@F))
 	@mkdir -p $(@D) && touch $@
-$(eval $(call eval_rule,bc,$(RESULTS),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL))))
+$(eval $(call eval_rule,bc,$(SHARED),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL))))
 # The ground-truth ceiling uses no learned world model, so only the policy makes it stale.
 uses_wm = $(if $(findstring gt-sim,$(1)),,$(2))
-$(foreach n,$(PLANNERS) $(CEILING),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(call uses_wm,$(n),$(PLAN_DONE)),\
+$(foreach n,$(PLANNERS),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(call uses_wm,$(n),$(PLAN_DONE)),\
   $(POLICY_CKPT) $(ARGS.$(n)) $(call uses_wm,$(n),--world-model $(PLAN_CKPT)) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
+$(eval $(call eval_rule,$(CEILING),$(SHARED),$(POLICY_DIR).done,$(POLICY_CKPT) $(ARGS.$(CEILING)) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL))))
 
-$(TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)/summary.json)
-	$(BIN)/gpc compare $(foreach n,$(PLANNERS) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
-	  --ceiling $(RESULTS)/$(CEILING) $(PAPER_STATE.$(TASK)) --out $@ \
+$(TABLE): $(SHARED)/bc/summary.json $(foreach n,$(PLANNERS),$(RESULTS)/$(n)/summary.json) $(SHARED)/$(CEILING)/summary.json
+	$(BIN)/gpc compare $(foreach n,$(PLANNERS),$(RESULTS)/$(n)) $(SHARED)/$(CEILING) --baseline $(SHARED)/bc \
+	  --ceiling $(SHARED)/$(CEILING) $(PAPER_STATE.$(TASK)) --out $@ \
 	  --title "State $(TITLE), PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): planners against BC (policy trained on expert data, $(GOAL) goal)"
 
 # The paper's Table III baselines on the same proposals (issue 49): V-GPS ranks the policy's K proposals by an IQL
@@ -434,9 +438,10 @@ $(foreach n,$(BASELINES),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).d
 # GPC's rows beside them (their rules are the state table's, unless PLANNERS leaves them out)
 $(foreach n,$(filter-out $(PLANNERS),$(BASELINE_GPC)),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(PLAN_DONE),\
   $(POLICY_CKPT) $(ARGS.$(n)) --world-model $(PLAN_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))
-$(BASELINE_TABLE): $(RESULTS)/bc/summary.json $(foreach n,$(BASELINES) $(BASELINE_GPC) $(CEILING),$(RESULTS)/$(n)/summary.json)
-	$(BIN)/gpc compare $(foreach n,$(BASELINES) $(BASELINE_GPC) $(CEILING),$(RESULTS)/$(n)) --baseline $(RESULTS)/bc \
-	  --ceiling $(RESULTS)/$(CEILING) --out $@ \
+$(BASELINE_TABLE): $(SHARED)/bc/summary.json $(foreach n,$(BASELINES) $(BASELINE_GPC),$(RESULTS)/$(n)/summary.json) \
+  $(SHARED)/$(CEILING)/summary.json
+	$(BIN)/gpc compare $(foreach n,$(BASELINES) $(BASELINE_GPC),$(RESULTS)/$(n)) $(SHARED)/$(CEILING) --baseline $(SHARED)/bc \
+	  --ceiling $(SHARED)/$(CEILING) --out $@ \
 	  --title "State $(TITLE), PROFILE=$(PROFILE), seeds $(word 2,$(EVAL)): the baselines against GPC-RANK on the same proposals"
 reproduce-baselines: $(BASELINE_TABLE)
 	@cat $(BASELINE_TABLE)
@@ -479,7 +484,7 @@ VPRECISION ?= 32-true
 VRESULTS := $(VRESULTS)$(if $(filter-out 32-true,$(VPRECISION)),-$(VPRECISION))
 # BC and the ceiling read no world model, so every VWM_PLAN's table shares them, and so does the exploration ablation
 # (EXPLORE=0 retrains only the world model): one BC and one ceiling per profile and goal.
-VSHARED := $(if $(filter 0,$(EXPLORE)),results/$(TASK)-$(PROFILE)$(GOAL_TAG),$(RESULTS))-vision
+VSHARED := $(SHARED)-vision
 REWARD_CKPT := $(RUN_DIR)/reward/checkpoints/last.ckpt
 VTABLE := $(if $(filter cpu1onpolicy32-true,$(PROFILE)$(EXPLORE)$(VWM_PLAN)$(VPRECISION)),results/$(TASK)_vision.md,$(VRESULTS)/$(TASK)_vision.md)
 VPOLICY_DEPS := $(if $(filter $(RUN_DIR)/%,$(VPOLICY_DATA)),$(RUN_DIR)/expert.done)

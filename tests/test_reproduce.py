@@ -213,3 +213,20 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     seeds = subprocess.run(elsewhere + ["SEEDS=100005:100007", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert "--seeds 100005:100007" in seeds.stdout and "--seeds 100000:" not in seeds.stdout  # its own folder: evaluated
 
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_another_planning_model_shares_bc_and_the_ceiling(tmp_path):
+    """WM_PLAN=onpolicy plans into its own results folder; BC and the ceiling read no world model, so its table takes
+    them from the default model's folder instead of evaluating them again (24 minutes of Cube & Sphere Swapping's)."""
+    venv = Path(sys.executable).parent.parent
+    base = ["make", "-n", "reproduce", "TASK=swap", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={tmp_path / 'runs'}"]
+    evals = {}
+    for plan in ("phase2", "onpolicy"):
+        done = subprocess.run(base + [f"WM_PLAN={plan}"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-2000:]
+        lines = [line for line in done.stdout.splitlines() if "gpc eval " in line and "gpc eval world-model" not in line]
+        evals[plan] = {line.split("--out ")[1].split()[0] for line in lines}
+    assert {"results/swap-smoke/bc", "results/swap-smoke/gt-sim-K4"} <= evals["phase2"] & evals["onpolicy"]
+    assert "results/swap-smoke-wm-onpolicy/rank-K4" in evals["onpolicy"] and "results/swap-smoke/rank-K4" in evals["phase2"]
+    assert not any(out.startswith("results/swap-smoke-wm-onpolicy/") for out in evals["onpolicy"] & evals["phase2"])
