@@ -43,27 +43,47 @@ def test_a_layout_without_objects_reads_no_goal_and_no_object_frame():
         _ = layout.primary
 
 
-def test_the_planning_reward_is_the_f1_the_true_states_score():
-    """The task's own reward (named ``module:function``) scores true states as the environment does, and has a
-    gradient for GPC-OPT."""
-    task = get_task("draw")
-    env = task.make_env("fixed")
-    env.reset(seed=100001)
+def _true_states(seed: int, toward: str) -> tuple[np.ndarray, list[float]]:
+    """Twelve steps of the pen from its start towards the next vertex (``"edge"``) or the triangle's centre; the
+    states after each step and the rewards the environment gave."""
+    env = get_task("draw").make_env("fixed")
+    env.reset(seed=seed)
+    v = env.sim.vertices
+    start = int(np.linalg.norm(v - env.sim.pen(), axis=1).argmin())
+    goal = v[(start + 1) % 3] if toward == "edge" else v.mean(axis=0)
     states, f1s = [], []
-    for target in np.linspace(env.sim.pen(), env.sim.vertices.mean(axis=0), 5):
+    for target in np.linspace(env.sim.pen(), goal, 12):
         _, reward, *_ = env.step(target)
         states.append(env.sim.state())
         f1s.append(reward)
-    futures = torch.tensor(np.array(states)[None], dtype=torch.float32, requires_grad=True)
-    reward = build_reward(RewardSpec(), task)
+    return np.array(states), f1s
+
+
+def test_the_planning_reward_reads_the_ink_from_the_pens_path():
+    """The task's own reward (named ``module:function``) takes the first step's ink and draws the rest from the pen's
+    path: on true states it is within 0.01 of the environment's F1 at every step, whatever the summaries after the first
+    say; it prefers a chunk along the outline to one across the triangle, as the environment does; and it has a
+    gradient for GPC-OPT (on the pen, and on the first step's ink: more on the outline is better, more off it worse)."""
+    task = get_task("draw")
+    reward, discounted = build_reward(RewardSpec(), task), build_reward(RewardSpec(aggregate="discounted"), task)
+    along, f1_along = _true_states(100001, "edge")
+    across, f1_across = _true_states(100001, "centre")
+    assert f1_along[-1] > f1_across[-1] + 0.05  # the environment's verdict
+    futures = torch.tensor(np.stack([along, across]), dtype=torch.float32, requires_grad=True)
     score = reward(futures)
-    assert score.shape == (1,) and score.item() == pytest.approx(f1s[-1], abs=1e-5)
+    assert score.shape == (2,) and score[0].item() == pytest.approx(f1_along[-1], abs=0.01)
+    assert score[1].item() == pytest.approx(f1_across[-1], abs=0.01) and score[0] > score[1] + 0.05
+    blind = futures.detach().clone()
+    blind[:, 1:, 8:] = blind[:, :1, 8:]  # later summaries that say nothing was drawn: the path still does
+    torch.testing.assert_close(reward(blind), score.detach())
     score.sum().backward()
-    assert futures.grad is not None and futures.grad[0, -1, 8:-1].min() > 0 and futures.grad[0, -1, -1] < 0  # ink on the
-    # outline raises it, ink off lowers it; only the last step counts (aggregate "final")
-    discounted = build_reward(RewardSpec(aggregate="discounted"), task)(futures.detach())
-    assert discounted.item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(f1s)), abs=1e-4)
-    assert float(geometry.f1_from_summary(states[-1][8:])) == pytest.approx(f1s[-1], abs=1e-12)
+    grad = futures.grad
+    assert grad is not None and grad[0, 0, 8:-1].min() > 0 and grad[0, 0, -1] < 0 and grad[:, 1:, :2].abs().sum() > 0
+    steps = [f1_along[0], *f1_along[1:]]
+    assert discounted(futures.detach())[0].item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(steps)), abs=0.1)
+    assert float(geometry.f1_from_summary(along[-1][8:])) == pytest.approx(f1_along[-1], abs=1e-12)
+    # one predicted step: the summary's own F1, exactly (what `gpc eval world-model` reads per state)
+    assert reward(futures.detach()[:, -1:])[0].item() == pytest.approx(f1_along[-1], abs=1e-5)
 
 
 def test_the_ceiling_replays_the_true_canvas():
