@@ -44,6 +44,9 @@ class InkReward(nn.Module):
     """``(K, T, D)`` predicted states -> ``(K,)`` scores: the last step's F1 (``aggregate="final"``) or the
     discounted sum of every step's (``"discounted"``); the goal is unused (the triangle is in the state)."""
 
+    along: torch.Tensor
+    across: torch.Tensor
+
     def __init__(self, aggregate: str = "final", discount: float = 0.99) -> None:
         super().__init__()
         self.aggregate, self.discount = aggregate, discount
