@@ -399,7 +399,7 @@ endef
 	"give another RESULTS, or remove that folder")' $(@D) $(patsubst .seeds-%,%,$(@F))
 	@mkdir -p $(@D) && touch $@
 $(eval $(call eval_rule,bc,$(SHARED),$(POLICY_DIR).done,$(POLICY_CKPT) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL))))
-# The ground-truth ceiling uses no learned world model, so only the policy makes it stale.
+# The ground-truth ceiling uses no learned world model, so only the policy makes it stale (in PLANNERS too, if put there).
 uses_wm = $(if $(findstring gt-sim,$(1)),,$(2))
 $(foreach n,$(PLANNERS),$(eval $(call eval_rule,$(n),$(RESULTS),$(POLICY_DIR).done $(call uses_wm,$(n),$(PLAN_DONE)),\
   $(POLICY_CKPT) $(ARGS.$(n)) $(call uses_wm,$(n),--world-model $(PLAN_CKPT)) $(EVAL) --goal $(GOAL),$(word 2,$(EVAL)))))

@@ -79,8 +79,7 @@ def test_the_planning_reward_reads_the_ink_from_the_pens_path():
     score.sum().backward()
     grad = futures.grad
     assert grad is not None and grad[0, 0, 8:-1].min() > 0 and grad[0, 0, -1] < 0 and grad[:, 1:, :2].abs().sum() > 0
-    steps = [f1_along[0], *f1_along[1:]]
-    assert discounted(futures.detach())[0].item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(steps)), abs=0.1)
+    assert discounted(futures.detach())[0].item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(f1_along)), abs=0.1)
     assert float(geometry.f1_from_summary(along[-1][8:])) == pytest.approx(f1_along[-1], abs=1e-12)
     # one predicted step: the summary's own F1, exactly (what `gpc eval world-model` reads per state)
     assert reward(futures.detach()[:, -1:])[0].item() == pytest.approx(f1_along[-1], abs=1e-5)

@@ -214,7 +214,6 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert "--seeds 100005:100007" in seeds.stdout and "--seeds 100000:" not in seeds.stdout  # its own folder: evaluated
 
 
-
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_another_planning_model_shares_bc_and_the_ceiling(tmp_path):
     """WM_PLAN=onpolicy plans into its own results folder; BC and the ceiling read no world model, so its table takes

@@ -61,8 +61,9 @@ class InkReward(nn.Module):
         k, t, _ = futures.shape
         start = futures[:, 0, SUMMARY_START:SUMMARY_START + N_SUMMARY].clamp(min=0.0)
         bins, off = start[:, :-1], start[:, -1]
+        first = f1(bins.sum(-1), off)[:, None]
         if t == 1:
-            return f1(bins.sum(-1), off)[:, None]
+            return first
         pen = futures[..., 0:2]
         a = futures[:, 0, 2:SUMMARY_START].reshape(k, 3, 2)  # edge i runs from vertex i to vertex i + 1
         edge = a.roll(-1, dims=1) - a
@@ -88,7 +89,7 @@ class InkReward(nn.Module):
         width = stray.reshape(k, t - 1, 3).clamp(0.0, 2.0 * PEN_RADIUS).mean(dim=-1)
         outside = off[:, None] + torch.cumsum((b_seg - a_seg).norm(dim=-1) * width, dim=1) / (total * 2.0 * PEN_RADIUS)
         later = f1(drawn.sum(dim=1), outside)  # (K, T - 1)
-        return torch.cat([f1(bins.sum(-1), off)[:, None], later], dim=1)
+        return torch.cat([first, later], dim=1)
 
     def forward(self, futures: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
         rewards = self.per_step(futures)
