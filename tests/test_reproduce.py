@@ -229,3 +229,20 @@ def test_another_planning_model_shares_bc_and_the_ceiling(tmp_path):
     assert {"results/swap-smoke/bc", "results/swap-smoke/gt-sim-K4"} <= evals["phase2"] & evals["onpolicy"]
     assert "results/swap-smoke-wm-onpolicy/rank-K4" in evals["onpolicy"] and "results/swap-smoke/rank-K4" in evals["phase2"]
     assert not any(out.startswith("results/swap-smoke-wm-onpolicy/") for out in evals["onpolicy"] & evals["phase2"])
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_the_vision_tables_use_their_papers_seeds(tmp_path):
+    """Table III (Swapping, Drawing, Stacking) is scored on 50 seeds, Push-T's vision table on 100; SEEDS still rules."""
+    venv = Path(sys.executable).parent.parent
+
+    def seeds(task: str, *extra: str) -> set[str]:
+        done = subprocess.run(["make", "-n", f"results/{task}-cpu-vision/bc/summary.json", f"TASK={task}", "PROFILE=cpu",
+                               f"VENV={venv}", f"RUN_DIR={tmp_path / task}", *extra],
+                              cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-2000:]
+        return {line.split("--seeds ")[1].split()[0] for line in done.stdout.splitlines() if "gpc eval " in line}
+
+    assert seeds("draw") == seeds("swap") == seeds("stack") == {"100000:100050"}
+    assert seeds("pusht") == {"100000:100100"}
+    assert seeds("draw", "SEEDS=100000:100010") == {"100000:100010"}
