@@ -629,12 +629,16 @@ restore-vision: $(RUN_DIR)/expert.done $(RUN_DIR)/explore.done
 # evaluations' results (finished or their saved groups, no videos). Then commit. A training state over KEEP_RESUME_MB
 # (the image policy's: 123 MB, Adam's moments of both weight copies) stays behind: that stage must finish in one sitting.
 KEEP_RESUME_MB ?= 32
+# The exports store the network's weights in float16 (`gpc export --half`: the image policy 15 MB, not 30), so a task's
+# kept stages fit about 40 MB; the runs/ copy becomes that export, so every figure from here on is measured with it.
+# Push-T's kept files predate this and stay float32. KEEP_EXPORT= keeps float32.
+KEEP_EXPORT ?= --half
 keep-vision: | $(STAMP)
 	@mkdir -p $(ARTIFACTS); for name in $(ARTIFACT_STAGES); do \
 	  dir=$(RUN_DIR)/$$name/checkpoints; [ -f $$dir/last.ckpt ] || continue; \
 	  if [ -f $(RUN_DIR)/$$name.done ]; then \
 	    cmp -s $$dir/last.ckpt $(ARTIFACTS)/$$name.ckpt && continue; \
-	    $(BIN)/gpc export $$dir/last.ckpt --out $(ARTIFACTS)/$$name.ckpt --overwrite || exit 1; \
+	    $(BIN)/gpc export $$dir/last.ckpt --out $(ARTIFACTS)/$$name.ckpt --overwrite $(KEEP_EXPORT) || exit 1; \
 	    mv $$dir/last.ckpt $$dir/trained.ckpt && cp $(ARTIFACTS)/$$name.ckpt $$dir/last.ckpt; \
 	    rm -f $(ARTIFACTS)/$$name.resume.ckpt; \
 	  elif [ $$(du -m $$dir/last.ckpt | cut -f1) -gt $(KEEP_RESUME_MB) ]; then \

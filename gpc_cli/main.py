@@ -144,6 +144,9 @@ def export(
     path: Path = typer.Argument(..., help="A gpc checkpoint: policy, world model or reward."),
     out: Path = typer.Option(..., "--out", "-o", help="The .ckpt file to write (a new path)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a file already at --out."),
+    half: bool = typer.Option(False, "--half", help="Store the network's weights in float16: half the file, "
+                              "the normaliser kept exact; the model then plans with rounded weights, so measure "
+                              "figures with the exported file."),
 ) -> None:
     """A checkpoint to plan with and share: config, normaliser and weights, without the optimiser's state
     (the policy keeps only the averaged weights it samples with: a quarter of Lightning's file)."""
@@ -176,7 +179,7 @@ def export(
     ckpt = read_checkpoint(path, None)
     adopt([out], older_export)
     buffer = io.BytesIO()
-    torch.save(for_planning(ckpt), buffer)
+    torch.save(for_planning(ckpt, half), buffer)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic(out, buffer.getvalue())
     typer.echo(f"wrote {out}: {ckpt['gpc']['kind']}, {len(buffer.getvalue()) / 2**20:.1f} MiB "

@@ -64,6 +64,32 @@ def test_exported_world_model_keeps_every_weight(ckpts, tmp_path):
     assert "raw_from_average" not in torch.load(out, weights_only=True)["gpc"]  # no averaged copy: nothing refilled
 
 
+def test_a_half_export_rounds_the_weights_and_keeps_the_normaliser(ckpts, tmp_path):
+    full, half = tmp_path / "full.ckpt", tmp_path / "half.ckpt"
+    assert gpc("export", ckpts["policy"], "--out", full).exit_code == 0
+    r = gpc("export", ckpts["policy"], "--out", half, "--half")
+    assert r.exit_code == 0, r.output
+    assert half.stat().st_size < 0.6 * full.stat().st_size
+    a, b = torch.load(full, weights_only=True), torch.load(half, weights_only=True)
+    assert b["gpc"]["half"] is True and "half" not in a["gpc"]
+    for key, value in a["state_dict"].items():
+        stored = b["state_dict"][key]
+        if "normalizer." in key or not value.is_floating_point():
+            assert stored.dtype == value.dtype and torch.equal(stored, value)  # the data's units, exact
+        else:
+            assert stored.dtype == torch.float16 and torch.equal(stored, value.half())
+    loaded = PolicyModule.load_from_checkpoint(half)
+    assert all(p.dtype == torch.float32 for p in loaded.parameters())  # plans in float32, with rounded weights
+    weights = loaded.state_dict()
+    assert weights["ema.model.unet.final.1.weight"].dtype == torch.float32
+    assert torch.equal(weights["ema.model.unet.final.1.weight"], a["state_dict"]["ema.model.unet.final.1.weight"].half().float())
+    obs = {k: torch.as_tensor(v) for k, v in histories([200000]).items()}
+    gen = [torch.Generator().manual_seed(4)]
+    trained = PolicyModule.load_from_checkpoint(ckpts["policy"]).sample_batch(obs, 3, gen)
+    rounded = loaded.sample_batch(obs, 3, [torch.Generator().manual_seed(4)])
+    assert 0 < (rounded - trained).abs().max() < 0.5  # other numbers; the same actions to within half a pixel of 512
+
+
 def test_export_refuses_to_replace_what_it_was_not_asked_to(ckpts, tmp_path):
     out = tmp_path / "kept.ckpt"
     out.write_bytes(b"the user's file")
@@ -164,6 +190,7 @@ def test_make_keep_vision_then_restore_vision_carries_the_stages_to_a_new_machin
     assert kept.returncode == 0, kept.stderr
     assert (runs / "vpolicy" / "checkpoints" / "trained.ckpt").read_bytes() == Path(ckpts["policy"]).read_bytes()
     assert (runs / "vpolicy" / "checkpoints" / "last.ckpt").read_bytes() == (art / "vpolicy.ckpt").read_bytes()
+    assert torch.load(art / "vpolicy.ckpt", weights_only=True)["gpc"]["half"] is True  # stored in float16
     assert (art / "wm-visual-phase1.resume.ckpt").read_bytes() == Path(ckpts["wm"]).read_bytes()
     kept_results = sorted(str(p.relative_to(art)) for p in art.rglob("*.json") if p.name != ".gpc-files.json")
     assert kept_results == ["results/results-vision/bc/.groups/0.json", "results/results-vision/bc/summary.json",

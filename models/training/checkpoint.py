@@ -21,6 +21,8 @@ FORMAT = 1
 META_KEY = "gpc"
 AVERAGED = "ema.model."  # where a module's averaged copy of its network sits in its state dict
 RAW_FROM_AVERAGE = "raw_from_average"  # record field of an export: the network's prefix, refilled from the average
+HALF = "half"  # record field of an export whose network weights are stored in float16
+NORMALISER = "normalizer."  # where a module's normaliser sits in its state dict: never rounded
 
 
 def checkpoint_meta(kind: str, task: str, **extra: Any) -> dict[str, Any]:
@@ -74,12 +76,14 @@ def rebuild(cls: Any, ckpt: dict[str, Any], path: str | os.PathLike, what: str) 
     return module.eval()
 
 
-def for_planning(ckpt: dict[str, Any]) -> dict[str, Any]:
+def for_planning(ckpt: dict[str, Any], half: bool = False) -> dict[str, Any]:
     """A checked checkpoint without what only training reads (optimiser state, loops, callbacks).
 
     Where the module keeps an averaged copy of its network (the policy samples with it), the raw copy is dropped
     as well and ``module_state`` refills it from the average on load: planning gives the same actions, and
-    training can start from it (``--init``) but not resume it.
+    training can start from it (``--init``) but not resume it. ``half``: the network's weights stored in float16,
+    half the file; loading casts them back to float32, so the model plans with rounded weights (figures are
+    measured with the exported file, not the trained one).
     """
     state = ckpt["state_dict"]
     meta = dict(ckpt[META_KEY])
@@ -89,7 +93,20 @@ def for_planning(ckpt: dict[str, Any]) -> dict[str, Any]:
         raw = {prefix + k for k in averaged}
         state = {k: v for k, v in state.items() if k not in raw}
         meta[RAW_FROM_AVERAGE] = prefix
+    if half:
+        state = {k: _half(k, v) for k, v in state.items()}
+        meta[HALF] = True
     return {META_KEY: meta, "hyper_parameters": ckpt["hyper_parameters"], "state_dict": state}
+
+
+def _half(key: str, value: torch.Tensor) -> torch.Tensor:
+    """float16 for a network weight; the normaliser (the data's units), integers and values float16 cannot hold stay
+    as trained."""
+    if not value.is_floating_point() or value.dtype == torch.float16 or NORMALISER in key:
+        return value
+    if value.numel() and not bool(value.abs().max() <= torch.finfo(torch.float16).max):
+        return value
+    return value.to(torch.float16)
 
 
 def module_state(ckpt: dict[str, Any]) -> dict[str, Any]:
