@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from faults import inline, one_line
 from toy_task import REACH
 
@@ -112,6 +113,14 @@ def test_a_policy_learns_the_labels_and_other_stores_give_their_actions(tmp_path
     run = train(PolicyModule, policy, [dart], _run(tmp_path, "labels"))
     loaded = PolicyModule.load_from_checkpoint(run.last)
     assert loaded.config.labels == "expert_action"
+    # its action normaliser spans the expert's labels on its training episodes, not the noisier actions executed
+
+    def span(labels: str) -> torch.Tensor:
+        data = PolicyModule.data_config(dataclasses.replace(policy, labels=labels), (str(dart),), _run(tmp_path, "x"), (0, 0.05))
+        return EpisodeDataModule(data).normalizer.scales["action"]
+
+    assert torch.equal(loaded.normalizer.scales["action"], span("expert_action"))
+    assert not torch.equal(loaded.normalizer.scales["action"], span("action"))
     assert json.loads((tmp_path / "labels" / "run.json").read_text())["config"]["labels"] == "expert_action"
     with pytest.raises(ValueError, match="--labels 'noisy'"):
         dataclasses.replace(policy, labels="noisy")

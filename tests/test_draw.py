@@ -158,5 +158,8 @@ def test_exploration_spreads_the_score_and_inks_off_the_outline() -> None:
     result = evaluate_explore(range(50000, 50006), ExploreConfig(mode="mixed"), max_steps=120)
     quantiles = result["score_quantiles"]
     assert quantiles[100] - quantiles[0] > 0.3 and result["mean_final_off_outline"] > 0.1
-    scribbles = evaluate_explore(range(50000, 50002), ExploreConfig(mode="scribbles"), max_steps=120)
-    assert scribbles["mean_score"] < result["mean_score"] + 0.2
+    assert sum(result["modes"].values()) == 6 and sum(n > 0 for n in result["modes"].values()) > 1
+    scribbles = evaluate_explore(range(50000, 50006), ExploreConfig(mode="scribbles"), max_steps=120)
+    # scribbling alone inks further off the outline, and scores lower, than the mix on the same seeds
+    assert scribbles["mean_final_off_outline"] > result["mean_final_off_outline"]
+    assert scribbles["mean_score"] < result["mean_score"]

@@ -263,3 +263,17 @@ def test_replaying_a_recorded_episode_reproduces_its_states() -> None:
     assert recomputed[0] <= expert_stats.score + 1e-6 and recomputed[0] > 0.9
     obs = observe(env, images=False, sim=True)
     assert obs["sim"].shape == (16,) and obs["state"].dtype == np.float32
+
+
+def test_episode_scores_take_each_episodes_best_reward() -> None:
+    goal = np.array([300.0, 210.0, 150.0, 380.0])  # the cube's target, then the sphere's
+    agent = [20.0, 20.0]
+    states = np.array([
+        [*agent, 100.0, 100.0, 0.3, 450.0, 450.0],  # episode A: both far from their targets
+        [*agent, 315.0, 210.0, 0.0, 450.0, 450.0],  # the cube 15 px off (covers 0.75), the sphere away: 0.375 / 0.95
+        [*agent, 300.0, 210.0, 0.7, 150.0, 380.0],  # episode B: both on target (the cube's yaw does not count): 1
+        [*agent, 100.0, 100.0, 0.0, 450.0, 450.0],  # then both off: the score is the best step, not the last
+    ])
+    scores = episode_scores(states, np.tile(goal, (4, 1)), np.array([2, 4]))
+    np.testing.assert_allclose(scores, [0.375 / 0.95, 1.0], atol=1e-9)
+

@@ -73,10 +73,14 @@ def test_every_stage_runs_from_the_cli_and_refuses_another_tasks_files(tmp_path)
     seeds = ["--seeds", "100000:100002", "--max-steps", "16"]
     planners = {"bc": [], "rank": ["--planner", "rank", "-K", "4", "--world-model", str(wm)],
                 "opt": ["--planner", "opt", "-M", "2", "--world-model", str(wm)], "ceiling": ["--planner", "gt-sim", "-K", "4"]}
+    labels = {"bc": ("bc", None), "rank": ("rank K=4", str(wm)), "opt": ("opt M=2", str(wm)), "ceiling": ("gt-sim K=4", "gt-sim")}
     for name, planner in planners.items():
         assert inline("eval", str(policy), *planner, *seeds, "--out", str(tmp_path / name))[0] == 0
         summary = json.loads((tmp_path / name / "summary.json").read_text())
         assert summary["config"]["task"] == "swap" and len(json.loads((tmp_path / name / "episodes.json").read_text())) == 2
+        controller = summary["run"]["controller"]  # each option reached the planner, not only the folder name
+        assert (controller["controller"], controller.get("world_model")) == labels[name], controller
+        assert summary["config"]["seeds"] == [100000, 100001]
     # another task's store, policy or world model: one line naming both tasks, nothing written
     assert inline("collect", "--out", str(pushed), "--episodes", "1", "--no-images", "--max-steps", "30")[0] == 0
     one_line(inline("train", "world-model", "--task", "swap", "--dataset", str(pushed), "--out", str(tmp_path / "mixed"), *train), 2,

@@ -100,7 +100,13 @@ def test_every_planner_runs_closed_loop_on_the_toy_task(trained, planner, tmp_pa
     assert [r["seed"] for r in result["episodes"]] == list(SEEDS)
     assert all(0.0 <= r["score"] <= 1.0 and r["steps"] >= 1 for r in result["episodes"])
     assert result["time_share"] and 0.0 <= result["mean_score"] <= 1.0
+    planned = recipe.summary()["planner"]  # the sizes asked for reached the planner
+    kind = "rank" if planner == GT_SIM else planner
+    assert (planned["kind"], planned["num_proposals"]) == (kind, small[0] or 1)
+    assert planned["opt_steps"] == (small[1] or 0)  # ascent steps, or CEM's and MPPI's iterations
     bc = evaluate(make_recipe(trained["policy"]), config)
+    if planner == GT_SIM:  # the true simulator's pick of four, by the chunk's reward, not below the policy's one draw
+        assert result["mean_score"] >= bc["mean_score"] - 0.02, (result["mean_score"], bc["mean_score"])
     write_results(bc, tmp_path / "bc", "bc")
     result["controller"] = recipe.summary()
     write_results(result, tmp_path / "planner", recipe.label)
