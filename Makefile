@@ -37,6 +37,12 @@ VSEEDS.swap := 100000:100050
 VSEEDS.draw := 100000:100050
 VSEEDS.stack := 100000:100050
 VSEEDS := $(or $(SEEDS),$(VSEEDS.$(TASK)),100000:100100)
+# Per task, vision: the planners of its table. Table III's rows are BC and GPC-RANK K=100, with GPC-OPT, GPC-RANK+OPT
+# and the ceiling beside them; Push-T's vision table is Table II's, K=50 as well.
+TABLE3_VPLANNERS := vrank-K100 vopt-M25 vrank-opt-10x25
+VPLANNERS.swap := $(TABLE3_VPLANNERS)
+VPLANNERS.draw := $(TABLE3_VPLANNERS)
+VPLANNERS.stack := $(TABLE3_VPLANNERS)
 # Per task, vision: how the planning world model's evaluation reads objects where colour cannot (Block Stacking's
 # perspective camera): the learned reward's state reader, heights included.
 VWM_READER.stack = --pose-reader $(REWARD_CKPT)
@@ -203,7 +209,7 @@ else ifeq ($(PROFILE),paper)
   VDISTILL := --profile cpu
   VREWARD := --profile paper
   VEVAL := --seeds $(VSEEDS) --batch 50
-  VPLANNERS := $(PAPER_VPLANNERS)
+  VPLANNERS := $(or $(VPLANNERS.$(TASK)),$(PAPER_VPLANNERS))
   VCEILING := vgt-sim-K100
   VRECORD := vopt-M25
   VRECORD_ARGS := --action-steps 15 --seed 70000 --episodes 200 --batch 50
@@ -245,7 +251,7 @@ else ifeq ($(PROFILE),cpu)
   VDISTILL := --profile cpu
   VREWARD := --profile cpu
   VEVAL := --seeds $(VSEEDS) --batch 10
-  VPLANNERS := $(PAPER_VPLANNERS)
+  VPLANNERS := $(or $(VPLANNERS.$(TASK)),$(PAPER_VPLANNERS))
   VCEILING := vgt-sim-K100
   # The on-policy model: GPC-OPT executing its whole ascended chunks (15 actions) on training seeds, 2,000 fine-tuning steps.
   VRECORD := vopt-M25
