@@ -84,9 +84,8 @@ def test_a_half_export_rounds_the_weights_and_keeps_the_normaliser(ckpts, tmp_pa
     assert weights["ema.model.unet.final.1.weight"].dtype == torch.float32
     assert torch.equal(weights["ema.model.unet.final.1.weight"], a["state_dict"]["ema.model.unet.final.1.weight"].half().float())
     obs = {k: torch.as_tensor(v) for k, v in histories([200000]).items()}
-    gen = [torch.Generator().manual_seed(4)]
-    trained = PolicyModule.load_from_checkpoint(ckpts["policy"]).sample_batch(obs, 3, gen)
-    rounded = loaded.sample_batch(obs, 3, [torch.Generator().manual_seed(4)])
+    trained, rounded = (policy.sample_batch(obs, 3, [torch.Generator().manual_seed(4)])
+                        for policy in (PolicyModule.load_from_checkpoint(ckpts["policy"]), loaded))
     assert 0 < (rounded - trained).abs().max() < 0.5  # other numbers; the same actions to within half a pixel of 512
 
 

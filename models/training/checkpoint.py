@@ -102,11 +102,10 @@ def for_planning(ckpt: dict[str, Any], half: bool = False) -> dict[str, Any]:
 def _half(key: str, value: torch.Tensor) -> torch.Tensor:
     """float16 for a network weight; the normaliser (the data's units), integers and values float16 cannot hold stay
     as trained."""
-    if not value.is_floating_point() or value.dtype == torch.float16 or NORMALISER in key:
+    if not value.is_floating_point() or NORMALISER in key:
         return value
-    if value.numel() and not bool(value.abs().max() <= torch.finfo(torch.float16).max):
-        return value
-    return value.to(torch.float16)
+    fits = not value.numel() or bool(value.abs().max() <= torch.finfo(torch.float16).max)
+    return value.to(torch.float16) if fits else value
 
 
 def module_state(ckpt: dict[str, Any]) -> dict[str, Any]:
