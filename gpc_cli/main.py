@@ -186,6 +186,32 @@ def export(
                f"(from {path.stat().st_size / 2**20:.1f} MiB)")
 
 
+@app.command("ensemble")
+def ensemble(
+    members: list[Path] = typer.Argument(..., help="Two or more world-model checkpoints of one task (state or image)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The .ckpt file to write (a new path)."),
+    pessimism: float = typer.Option(0.0, "--pessimism", help="A candidate's score is the members' mean reward less this "
+                                    "many times their spread (0: the mean)."),
+    half: bool = typer.Option(False, "--half", help="Store the members' network weights in float16 (as gpc export --half)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a file already at --out."),
+) -> None:
+    """Several world models as one to plan with (``--world-model``): each candidate is scored by every member's
+    prediction, and the scores combined, so what one model alone gets wrong counts less."""
+    from gpc.datasets.errors import DataError
+    from gpc.harness.files import check_file_out, write_bytes_atomic
+    from gpc.models.world_models.ensemble import KIND, ensemble_checkpoint, save_ensemble
+
+    if any(out.exists() and out.resolve() == m.resolve() for m in members):
+        raise DataError(f"{out}: is one of the members; --out names a new file")
+    check_file_out(out, ".ckpt")  # --overwrite replaces only a file gpc wrote
+    if out.exists() and not overwrite:
+        raise DataError(f"{out}: already exists; choose another --out or pass --overwrite")
+    data = save_ensemble(ensemble_checkpoint(members, pessimism, half))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(out, data)
+    typer.echo(f"wrote {out}: {KIND} of {len(members)} members, pessimism {pessimism:g}, {len(data) / 2**20:.1f} MiB")
+
+
 @app.command("eval-expert")
 def eval_expert(
     seeds: str = typer.Option("100000:100100", "--seeds", help="Seed range START:STOP (stop excluded)."),

@@ -14,6 +14,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from gpc.datasets.errors import DataError
 from gpc.datasets.locks import exclusive
@@ -74,12 +75,14 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
                  horizon: int | None, stride: int | None, max_windows: int, noise: str, sampler_steps: int | None,
                  pose_reader: Path | None, held_out_of: HeldOutOf | None) -> Written:
     from gpc.models.world_models.config import VisualWorldModelConfig
-    from gpc.models.world_models.module import WorldModelModule
+    from gpc.models.world_models.ensemble import WorldModelEnsemble, load_any
 
-    module = WorldModelModule.load_from_checkpoint(checkpoint)
+    module: Any = load_any(checkpoint)
     layout = get_task(module.config.task).layout
     files: list[Path] = []
     if isinstance(module.config, VisualWorldModelConfig):
+        if isinstance(module, WorldModelEnsemble):
+            raise ValueError(f"{checkpoint}: an ensemble of visual world models; judge its members one by one")
         import cv2
 
         from gpc.models.networks.edm import NOISE_MODES
@@ -147,6 +150,8 @@ def _world_model(checkpoint: Path, datasets: Sequence[Path], out: Path, split: s
                                    stride=stride or STATE_STRIDE, held_out_of=held_out_of, reward=reward)
         table = markdown_table(report, f"World model rollouts: {checkpoint}")
     report["checkpoint"] = str(checkpoint)
+    if isinstance(module, WorldModelEnsemble):  # its mean prediction is judged; the config is its first member's
+        report["ensemble"] = module.summary()
     interrupts.check()
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "world_model_eval.json", json.dumps(report, indent=2))

@@ -69,12 +69,13 @@ class RewardSpec:
 
 
 def load_world_model(path: str, task: Task, device: str = "cpu") -> Any:
-    """The task's ground-truth simulator for ``gt-sim``, else a world-model checkpoint of the task (state or image) on ``device``."""
+    """The task's ground-truth simulator for ``gt-sim``, else a world-model checkpoint of the task (state or image, one
+    model or an ensemble) on ``device``."""
     if path == GT_SIM:
         return task.simulator()
-    from gpc.models.world_models.module import WorldModelModule
+    from gpc.models.world_models.ensemble import load_any
 
-    return WorldModelModule.load_from_checkpoint(path, map_location=device, task=task.name).to(device)
+    return load_any(path, task.name, map_location=device).to(device)
 
 
 def build_reward(spec: RewardSpec, task: Task, device: str = "cpu") -> Any:

@@ -16,7 +16,7 @@ from gpc.models.planning.planner import Planner, model_planner
 from gpc.models.planning.protocols import Reward, WorldModel
 from gpc.models.policy.formats import ForeignTask, feature_sources, load_policy
 from gpc.models.policy.module import PolicyModule
-from gpc.models.world_models.module import load_world_model
+from gpc.models.world_models.ensemble import load_any
 
 IMAGE_KEY = "img"
 IMAGE_POLICIES = ("image",)
@@ -57,7 +57,7 @@ def load_planner(policy: str | os.PathLike | PolicyModule, world_model: str | os
         proposer = load_policy(policy, sources, task.name if task is not None else None, policy_format)
     model: WorldModel
     if isinstance(world_model, (str, os.PathLike)):
-        source, model = str(world_model), load_world_model(world_model)
+        source, model = str(world_model), load_any(world_model)
     else:
         source, model = type(world_model).__name__, world_model
     check_pairing(proposer, model, source)

@@ -46,21 +46,34 @@ class Objective:
         self.episodes = episodes  # ids of the B histories' episodes (a selector warns once per episode)
 
     def __call__(self, chunks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(B, K, T, A)`` -> scores ``(B, K)`` and predicted futures ``(B, K, T', ...)``."""
+        """``(B, K, T, A)`` -> scores ``(B, K)`` and predicted futures ``(B, K, T', ...)``.
+
+        An ensemble (``gpc.models.world_models.ensemble``) scores every member's future and combines the scores; its
+        futures here are the members' mean (a selecting reward, which only ranks, reads those).
+        """
         b, k = chunks.shape[:2]
         history = self.history[:, None].expand(b, k, *self.history.shape[1:]).flatten(0, 1)
+        members = getattr(self.world_model, "rollout_members", None)
         with self.timer("world_model"):
-            futures = self.world_model.rollout(history, chunks.flatten(0, 1)).unflatten(0, (b, k))  # the reward reads
-            # these very tensors, so a gradient on them is the score's (the ascent's diagnostics read it)
+            if members is None:
+                futures = self.world_model.rollout(history, chunks.flatten(0, 1)).unflatten(0, (b, k))  # the reward
+                # reads these very tensors, so a gradient on them is the score's (the ascent's diagnostics read it)
+            else:
+                each = members(history, chunks.flatten(0, 1))  # (E, B*K, T', ...)
+                futures = each.mean(0).unflatten(0, (b, k))
+        goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
         with self.timer("reward"):
             if getattr(self.reward, "selects", False):  # a selector ranks one history's candidates at a time
                 goals = [None if self.goal is None else self.goal[i] for i in range(b)]
                 ids = self.episodes if self.episodes is not None and len(self.episodes) == b else range(b)
                 select: Any = self.reward  # a selector also takes the episode id (it warns once per episode)
                 scores = torch.stack([select(futures[i], goals[i], episode=int(ids[i])) for i in range(b)])
-            else:
-                goal = None if self.goal is None else self.goal[:, None].expand(b, k, -1).flatten(0, 1)
+            elif members is None:
                 scores = self.reward(futures.flatten(0, 1), goal).unflatten(0, (b, k))
+            else:
+                per_member = torch.stack([self.reward(future, goal) for future in each])
+                ensemble: Any = self.world_model
+                scores = ensemble.combine(per_member).unflatten(0, (b, k))
         return scores, futures
 
 
