@@ -149,3 +149,32 @@ def test_gpc_eval_world_model_judges_the_mean_prediction_where_the_members_held_
     assert one.exit_code == 0, one.output
     alone = json.loads((tmp_path / "one" / "world_model_eval.json").read_text())
     assert report["windows"] == alone["windows"] and report["mean_over_steps"] != alone["mean_over_steps"]
+
+
+def test_a_visual_ensemble_scores_every_members_frames_with_the_learned_reward(models, tmp_path):
+    from gpc.harness.collection import CollectJob, collect
+    from gpc.models.rewards.learned import RewardPredictorModule, reward_profile
+
+    collect(CollectJob(task="pusht", out=tmp_path / "img.zarr", episodes=3, images=True, max_steps=40))
+    data, run = [tmp_path / "img.zarr"], dict(RUN, batch_size=8)
+    visual = world_model_profile("tiny", 1, LAYOUT, obs="image").config
+    members = [str(train(WorldModelModule, visual, data, RunConfig(run_dir=tmp_path / f"w{s}", max_steps=3, seed=s, **run)).last)
+               for s in (0, 1)]
+    reward_ckpt = train(RewardPredictorModule, reward_profile("tiny", LAYOUT).config, data,
+                        RunConfig(run_dir=tmp_path / "r", max_steps=3, **run)).last
+    out = tmp_path / "e.ckpt"
+    assert gpc("ensemble", *members, "--pessimism", "2", "--out", str(out)).exit_code == 0
+    ensemble = load_any(out, "pusht")
+    reward = build_reward(RewardSpec(kind="learned", checkpoint=str(reward_ckpt)), PUSHT)
+    g = np.random.default_rng(0)
+    obs = {"img": g.integers(0, 255, (2, ensemble.n_obs_steps, 96, 96, 3)).astype(np.uint8)}
+    chunks = _chunks(1, 2, 3)
+    scores, futures = ModelScorer(ensemble, reward).objective(obs, PartTimer())(chunks)
+    each = [ModelScorer(m, reward).objective(obs, PartTimer())(chunks) for m in ensemble.members]
+    per_member = torch.stack([s for s, _ in each])
+    assert futures.shape == each[0][1].shape and futures.dim() == 6 and futures.shape[:2] == (2, 3)  # (B, K, T, 3, S, S)
+    torch.testing.assert_close(scores, per_member.mean(0) - 2 * per_member.std(0, unbiased=False), rtol=1e-4, atol=1e-5)
+    judged = gpc("eval", "world-model", str(out), "--dataset", str(data[0]), "--split", "all", "--out", str(tmp_path / "j"))
+    assert judged.exit_code == 2 and "judge its members one by one" in judged.output
+    mixed = gpc("ensemble", members[0], models["wm"], "--out", str(tmp_path / "mixed.ckpt"))
+    assert mixed.exit_code == 2 and "observation 'state', not 'img'" in mixed.output and not (tmp_path / "mixed.ckpt").exists()
