@@ -250,3 +250,24 @@ def test_the_vision_tables_use_their_papers_seeds(tmp_path):
         assert evals(task) == dict.fromkeys(table3, "100000:100050"), task
     assert evals("pusht") == dict.fromkeys(table3 | {"vrank-K50"}, "100000:100100")  # Table II's, on 100 seeds
     assert set(evals("draw", "SEEDS=100000:100010").values()) == {"100000:100010"}
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_an_ensemble_plan_trains_its_members_and_plans_with_one_file(tmp_path):
+    """WM_PLAN=ensemble: the on-policy model and one more per ENSEMBLE_SEEDS (each with its seed), joined by `gpc
+    ensemble` with PESSIMISM; every planner's --world-model is that file, its results in their own folder."""
+    venv = Path(sys.executable).parent.parent
+    runs = tmp_path / "runs"
+    done = subprocess.run(["make", "-n", "reproduce", "TASK=swap", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={runs}",
+                           "WM_PLAN=ensemble", "ENSEMBLE_SEEDS=3 4", "PESSIMISM=0.5"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    trains = [line for line in done.stdout.splitlines() if "gpc train world-model" in line and "--phase 2" in line]
+    seeds = sorted(line.split("--seed ")[1].split()[0] for line in trains if "policy-episodes.zarr" in line)
+    assert seeds == ["0", "3", "4"]  # the on-policy model and its two siblings, on the same data
+    ensemble = f"{runs}/wm-onpolicy-ensemble-p0.5.ckpt"
+    joined = [line for line in done.stdout.splitlines() if "gpc ensemble" in line]
+    assert len(joined) == 1 and "--pessimism 0.5" in joined[0] and joined[0].count("/checkpoints/last.ckpt") == 3
+    planners = [line for line in done.stdout.splitlines() if "gpc eval " in line and "--world-model" in line]
+    assert planners and all(f"--world-model {ensemble}" in line for line in planners if "gt-sim" not in line)
+    assert all("results/swap-smoke-wm-ensemble/" in line for line in planners if "gt-sim" not in line)
