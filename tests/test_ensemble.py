@@ -178,3 +178,19 @@ def test_a_visual_ensemble_scores_every_members_frames_with_the_learned_reward(m
     assert judged.exit_code == 2 and "judge its members one by one" in judged.output
     mixed = gpc("ensemble", members[0], models["wm"], "--out", str(tmp_path / "mixed.ckpt"))
     assert mixed.exit_code == 2 and "observation 'state', not 'img'" in mixed.output and not (tmp_path / "mixed.ckpt").exists()
+
+
+def test_one_model_twice_plans_as_that_model_even_where_the_ascent_differentiates_a_zero_spread(models, tmp_path):
+    out = tmp_path / "twice.ckpt"
+    assert gpc("ensemble", models["wm"], models["wm"], "--pessimism", "3", "--out", str(out)).exit_code == 0
+    policy = PolicyModule.load_from_checkpoint(models["policy"])
+    reward = build_reward(RewardSpec(), PUSHT)
+    box = dict(action_low=LAYOUT.action.low, action_high=LAYOUT.action.high)
+    config = PlannerConfig(kind="rank-opt", num_proposals=3, opt_steps=4, **box)
+    seeds = [100000, 100001]
+    obs = histories(seeds)
+    twice = model_planner(config, load_any(out), reward, policy).plan(obs, gens(seeds))
+    alone = model_planner(config, WorldModelModule.load_from_checkpoint(models["wm"]), reward, policy).plan(obs, gens(seeds))
+    assert np.isfinite(twice.chunk).all()  # the spread's gradient at 0 is 0, not NaN
+    np.testing.assert_allclose(twice.chunk, alone.chunk, rtol=1e-5, atol=1e-3)
+    np.testing.assert_array_equal(twice.chosen, alone.chosen)

@@ -85,7 +85,7 @@ class WorldModelEnsemble(nn.Module):
         mean = scores.mean(0)
         if not self.pessimism:
             return mean
-        return mean - self.pessimism * scores.std(0, unbiased=False)
+        return mean - self.pessimism * scores.std(0, unbiased=False)  # (torch's gradient of a zero spread is 0)
 
     def to(self, *args: Any, **kwargs: Any) -> WorldModelEnsemble:
         """Each member moved by its own ``to`` (a Lightning module tracks its device there)."""
