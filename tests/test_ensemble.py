@@ -15,7 +15,7 @@ from tiny_planning import PUSHT, gens, histories, train_checkpoints
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.planning.config import PlannerConfig
 from gpc.models.planning.loading import load_planner
-from gpc.models.planning.objective import ModelScorer, PartTimer
+from gpc.models.planning.objective import ModelScorer, Objective, PartTimer
 from gpc.models.planning.planner import model_planner
 from gpc.models.policy.module import PolicyModule
 from gpc.models.training.config import RunConfig
@@ -71,6 +71,13 @@ def test_an_ensemble_scores_every_members_future_and_doubts_their_spread(models,
     expected = per_member.mean(0) - 0.5 * per_member.std(0, unbiased=False)
     torch.testing.assert_close(scores, expected, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(futures, (each[0][1] + each[1][1]) / 2, rtol=1e-5, atol=1e-4)  # videos: the mean
+    # a per-episode goal reaches every member's reward with its own history's candidates
+    goal = torch.tensor([[1.0], [-2.0]])
+    by_goal = lambda futures, g: futures[:, -1, 0] * g[:, 0]  # noqa: E731
+    history = torch.as_tensor(obs["state"])
+    combined, _ = Objective(ensemble, by_goal, history, goal, PartTimer())(chunks)
+    own = torch.stack([Objective(m, by_goal, history, goal, PartTimer())(chunks)[0] for m in (one, two)])
+    torch.testing.assert_close(combined, own.mean(0) - 0.5 * own.std(0, unbiased=False), rtol=1e-5, atol=1e-4)
     mean = load_any(_ensemble(models, tmp_path / "mean.ckpt"), "pusht")
     torch.testing.assert_close(ModelScorer(mean, reward).objective(obs, PartTimer())(chunks)[0], per_member.mean(0),
                                rtol=1e-5, atol=1e-6)

@@ -71,7 +71,8 @@ class Objective:
             elif members is None:
                 scores = self.reward(futures.flatten(0, 1), goal).unflatten(0, (b, k))
             else:
-                per_member = torch.stack([self.reward(future, goal) for future in each])
+                e = each.shape[0]  # every member's futures in one call
+                per_member = self.reward(each.flatten(0, 1), None if goal is None else goal.repeat(e, 1)).unflatten(0, (e, b * k))
                 ensemble: Any = self.world_model
                 scores = ensemble.combine(per_member).unflatten(0, (b, k))
         return scores, futures
