@@ -83,7 +83,9 @@ class WorldModel(Protocol):
 
     Planners read the history from the observation named by an optional ``obs_key``
     attribute (``state`` when absent; ``img`` for visual models, whose futures are frames
-    ``(K, T', 3, S, S)``; the ground-truth simulator reads ``sim``).
+    ``(K, T', 3, S, S)``; the ground-truth simulator reads ``sim``). An ensemble also has
+    ``rollout_members`` (``(E, K, T, ...)``) and ``combine`` (``(E, ...)`` member scores -> one):
+    the objective then scores every member's future (``gpc.models.world_models.ensemble``).
     """
 
     @property

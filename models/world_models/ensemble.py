@@ -94,8 +94,9 @@ class WorldModelEnsemble(nn.Module):
         return self
 
     def set_rollout_precision(self, precision: str) -> str:
-        """Every member's (``WorldModelModule.set_rollout_precision``); the dtype they run in."""
-        return [member.set_rollout_precision(precision) for member in self.members][0]
+        """Every member's (``WorldModelModule.set_rollout_precision``); the dtypes they run in (``bfloat16+float32`` where
+        members differ: results record it)."""
+        return "+".join(sorted({member.set_rollout_precision(precision) for member in self.members}))
 
     def summary(self) -> dict[str, Any]:
         return {"members": len(self.members), "pessimism": self.pessimism}
