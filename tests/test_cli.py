@@ -64,7 +64,7 @@ def test_data_info_table_and_json(tmp_path):
     info = json.loads(res.output)
     assert info["episodes"] == 3 and info["steps"] == 18
     assert info["keys"]["state"]["shape"] == [18, 5]
-    assert info["score"]["mean"] == pytest.approx(1.0)  # recomputed from states: block on the goal
+    assert info["score"]["mean"] == pytest.approx(1.0) and info["score"]["success_rate"] == 1.0  # recomputed: block on the goal
     assert info["contact_fraction"] == 0.0
     table = gpc("data", "info", str(path))
     assert table.exit_code == 0 and "3 episodes" in table.output

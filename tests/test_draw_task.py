@@ -7,6 +7,7 @@ tests/test_reproduce_draw.py. These check what the rest of gpc sees through ``gp
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
@@ -123,3 +124,18 @@ def test_the_policys_normaliser_spans_the_ink_off_the_outline_its_demonstrations
     fitted = EpisodeDataModule(dataclasses.replace(data.config, state_spans=())).normalizer
     assert fitted.normalize("state", bad)[off] > 9  # what the policy saw before the span
     torch.testing.assert_close(norm.normalize("state", bad)[:off], fitted.normalize("state", bad)[:off])
+
+
+def test_a_stores_success_rate_is_the_tasks_not_push_ts(tmp_path):
+    """An expert's drawings score just above F1 0.9 (it stops on success): every one succeeded, none reaches 1. Swap's
+    success (both objects placed) is no function of its score, so its store's summary gives no rate at all."""
+    from faults import inline
+
+    drawn, swapped = tmp_path / "draw.zarr", tmp_path / "swap.zarr"
+    assert inline("collect", "--task", "draw", "--out", str(drawn), "--episodes", "2", "--no-images")[0] == 0
+    code, out = inline("data", "info", str(drawn), "--json")
+    score = json.loads(out)["score"]
+    assert code == 0 and score["max"] < 1.0 and score["min"] >= geometry.SUCCESS_F1 and score["success_rate"] == 1.0
+    assert inline("collect", "--task", "swap", "--out", str(swapped), "--episodes", "1", "--no-images", "--max-steps", "20")[0] == 0
+    code, out = inline("data", "info", str(swapped), "--json")
+    assert code == 0 and "mean" in json.loads(out)["score"] and "success_rate" not in json.loads(out)["score"]

@@ -46,7 +46,8 @@ def describe_store(path: Path) -> dict[str, Any]:
         arrays = {key: store.read(key) for key in ("state", GOAL_KEY) if key in store.keys}
         scores = get_task(task_name).episode_scores(arrays, store.episode_ends)
     if scores is not None and store.n_episodes:
-        info["score"] = {**_stats(scores), "success_rate": float(np.mean(scores >= 1.0))}
+        threshold = get_task(task_name).success_score if task_name else None
+        info["score"] = _stats(scores) | ({} if threshold is None else {"success_rate": float(np.mean(scores >= threshold))})
     coverage = get_task(task_name).pose_coverage if task_name else None
     if coverage is not None and "state" in store.keys and store.n_steps:
         info["pose_coverage"] = float(coverage(store.read("state")))

@@ -95,6 +95,7 @@ TASK = Task(
     render_state=render_state,
     episode_scores=stored_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
+    success_score=geometry.SUCCESS_F1,  # the score is the best F1; success is an F1 above this
     state_reward=STATE_REWARD,
     info_metrics=("coverage", "off_outline"),
     draw_plan=draw_plan,

@@ -93,6 +93,7 @@ TASK = Task(
     render_state=render_state,
     episode_scores=stored_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
+    success_score=None,  # success is not a function of the score (see the env's is_success)
     state_reward="gpc.tasks.stack.reward:stack_reward",
     info_metrics=("distance",),
     row_shapes={"n_contacts": (1,)},

@@ -104,6 +104,7 @@ TASK = Task(
     render_state=render_state,
     episode_scores=stored_scores,
     max_episode_steps=MAX_EPISODE_STEPS,
+    success_score=None,  # success is not a function of the score (see the env's is_success)
     state_reward="registration",  # the mean of the two objects' distances to their targets (positions only)
     info_metrics=("coverage",),
     draw_plan=draw_plan,
