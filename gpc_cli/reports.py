@@ -44,8 +44,9 @@ def print_description(info: dict) -> None:
     for name in ("contact_fraction", "pose_coverage"):
         if name in info:
             _console.print(f"{name}: {info[name]:.3f}")
-    if "task_note" in info:
-        _console.print(info["task_note"])
+    for note in ("task_note", "score_note"):
+        if note in info:
+            _console.print(info[note])
     if info["attrs"]:
         _console.print("provenance: " + json.dumps(info["attrs"]))
 

@@ -139,3 +139,20 @@ def test_a_stores_success_rate_is_the_tasks_not_push_ts(tmp_path):
     assert inline("collect", "--task", "swap", "--out", str(swapped), "--episodes", "1", "--no-images", "--max-steps", "20")[0] == 0
     code, out = inline("data", "info", str(swapped), "--json")
     assert code == 0 and "mean" in json.loads(out)["score"] and "success_rate" not in json.loads(out)["score"]
+
+
+def test_the_ascent_probe_measures_a_drawing_by_the_pen(tmp_path):
+    """No object to register: the probe's world-model error is the pen's distance (it once stacked no outlines)."""
+    from faults import inline
+
+    store = tmp_path / "expert.zarr"
+    train = ["--task", "draw", "--dataset", str(store), "--profile", "tiny", "--max-steps", "5", "--no-progress"]
+    assert inline("collect", "--task", "draw", "--out", str(store), "--episodes", "2", "--no-images")[0] == 0
+    assert inline("train", "policy", *train, "--out", str(tmp_path / "policy"))[0] == 0
+    assert inline("train", "world-model", *train, "--out", str(tmp_path / "wm"))[0] == 0
+    code, out = inline("eval", "ascent", str(tmp_path / "policy" / "checkpoints" / "last.ckpt"), "--planner", "opt", "-M", "2",
+                       "--world-model", str(tmp_path / "wm" / "checkpoints" / "last.ckpt"), "--seeds", "200000:200001",
+                       "--max-steps", "8", "--out", str(tmp_path / "a.md"))
+    assert code == 0, out
+    error = json.loads((tmp_path / "a.json").read_text())["model_error"]
+    assert np.isfinite(error["start_mean"]) and error["start_mean"] > 0

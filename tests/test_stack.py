@@ -121,6 +121,15 @@ def test_unstable_simulation_truncates_with_zero_reward(tmp_path, monkeypatch) -
     env.sim.restore(vector)
     _, reward, terminated, truncated, info = env.step(np.array([0.0, 0.0, 0.1, 0.05]))
     assert truncated and not terminated and reward == 0.0 and "diverged" in info["unstable"]
+    # a served robot (`gpc serve`'s simulator client) ends that episode as `gpc eval` does, and says why
+    from types import SimpleNamespace
+
+    from gpc.serving.robot import SimRobot
+
+    robot = SimRobot(SimpleNamespace(metadata={"task": "stack", "observations": ["state"], "goal": "fixed"}))  # type: ignore[arg-type]
+    robot.reset(seed=2)
+    robot.env.sim.restore(vector)
+    assert robot.step(np.array([0.0, 0.0, 0.1, 0.05])) and "diverged" in robot.row["unstable"] and robot.row["steps"] == 1
     sim = StackSim()
     s = initial_scene(2)
     s[geometry.RED] = s[geometry.BLUE] + [0.005, 0.0, 0.0]  # the cubes inside each other

@@ -91,3 +91,16 @@ def test_every_stage_runs_from_the_cli_and_refuses_another_tasks_files(tmp_path)
     one_line(inline("eval", str(tmp_path / "pusht-policy" / "checkpoints" / "last.ckpt"), "--planner", "rank", "-K", "2",
                     "--world-model", str(wm), *seeds, "--out", str(tmp_path / "mixed")), 2, "task 'swap', expected task 'pusht'")
     assert not (tmp_path / "mixed").exists()
+
+
+def test_a_store_without_goals_is_described_without_scores(tmp_path):
+    """`gpc eval ranking --save-replays` keeps states and actions only: swap cannot score them, the rest is described."""
+    from gpc.datasets.store import EpisodeStore
+
+    task = get_task("swap")
+    store = EpisodeStore.create(tmp_path / "replays.zarr", {"task": "swap"})
+    data, _ = task.record("expert", 100000, "fixed", False, 12)
+    store.append_episode({k: data[k] for k in ("state", "action")}, seed=100000)
+    code, out = inline("data", "info", str(tmp_path / "replays.zarr"), "--json")
+    info = json.loads(out)
+    assert code == 0 and info["steps"] == 12 and "score" not in info and "data/goal" in info["score_note"]

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from gpc.harness import interrupts
+from gpc.harness.episode_rows import add_step, new_row
 from gpc.harness.files import write_atomic
 from gpc.harness.memory import keep_freed_memory
 from gpc.models.planning.protocols import Controller, Plan
@@ -92,9 +93,7 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
     keys = tuple(controller.obs_keys)
     observe = lambda env: task.with_derived(task.observe(env, images, sim), keys)  # noqa: E731
     hist = [deque([observe(env)] * controller.n_obs_steps, maxlen=controller.n_obs_steps) for env in envs]
-    rows: list[dict[str, Any]] = [
-        {"seed": int(s), "score": 0.0, "success": False, "steps": 0, **{f"{m}_max": 0.0 for m in task.info_metrics}}
-        for s in seeds]
+    rows = [new_row(task, s) for s in seeds]
     done = [False] * len(seeds)
     latencies: list[float] = []
     sizes: list[int] = []  # episodes planned for in each call
@@ -121,16 +120,9 @@ def run_group(controller: Controller, seeds: Sequence[int], config: EvalConfig) 
                 _, reward, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float64))
                 if recorders:
                     recorders[i].after(info)
-                row = rows[i]
-                row["steps"] += 1
-                row["score"] = max(row["score"], float(reward))
-                for m in task.info_metrics:
-                    row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
-                row["success"] = row["success"] or bool(terminated)
+                ended = add_step(task, rows[i], reward, terminated, truncated, info)
                 hist[i].append(observe(env))  # every step: the history is consecutive steps, as in training
-                if truncated:  # the task's simulation went unstable: the episode ends with its score so far
-                    row["unstable"] = str(info.get("unstable", "truncated"))
-                if terminated or truncated or row["steps"] >= (config.max_steps or task.max_episode_steps):
+                if ended or rows[i]["steps"] >= (config.max_steps or task.max_episode_steps):
                     done[i] = True
                     break
             rows[i]["final_state"] = [float(v) for v in hist[i][-1]["state"]]

@@ -89,15 +89,23 @@ class ProbingPlanner:
     def _against_truth(self, predicted: torch.Tensor, true_states: torch.Tensor,
                      goal: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(B, N, T', ...)`` predictions, ``(B, N, T, D)`` true states -> ``(B, N)`` error on the last predicted step
-        (the object's vertex distance for state models, the pixel RMSE against the true frame for image models)
+        (the objects' vertex distance for state models, or the agent's where the task has no object; the pixel RMSE
+        against the true frame for image models)
         and ``(B, N)`` the planner's reward reading that true frame (image models; NaN for state models)."""
         layout = self.task.layout
         nan = torch.full(predicted.shape[:2], float("nan"))
         if predicted.dim() == 4:  # state futures
-            return layout_registration(predicted[:, :, -1], true_states[:, :, -1], layout), nan
+            pred, true = predicted[:, :, -1], true_states[:, :, -1]
+            if layout.objects:
+                return layout_registration(pred, true, layout), nan
+            if layout.state.agent_xy:  # nothing to register (a drawing): the agent's (the pen's) distance
+                xy = list(layout.state.agent_xy)
+                return (pred[..., xy] - true[..., xy]).norm(dim=-1), nan
+            return nan, nan
         frameskip = true_states.shape[2] // predicted.shape[2]
         last = true_states[:, :, predicted.shape[2] * frameskip - 1].numpy()
-        frames = np.stack([[self.task.render_state(s) for s in row] for row in last])  # (B, N, S0, S0, C)
+        goals_np = [None] * len(last) if goal is None else goal.numpy()  # drawn as the camera shows it (swap's targets)
+        frames = np.stack([[self.task.render_state(s, g) for s in row] for row, g in zip(last, goals_np)])  # (B, N, S0, S0, C)
         as_frames = getattr(getattr(self.planner.world_model, "dynamics", None), "frames", None)  # stored images -> its frames
         if as_frames is None:
             return nan, nan

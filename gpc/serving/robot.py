@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from gpc.client import AsyncChunks, PolicyClient
+from gpc.harness.episode_rows import add_step, new_row
 from gpc.tasks import get_task
 
 
@@ -29,7 +30,7 @@ class SimRobot:
 
     def reset(self, seed: int) -> dict[str, np.ndarray]:
         self.env.reset(seed=seed)
-        self.row: dict[str, Any] = {"seed": int(seed), "score": 0.0, "success": False, "steps": 0}
+        self.row: dict[str, Any] = new_row(self.task, seed)
         return self.observe()
 
     def observe(self) -> dict[str, np.ndarray]:
@@ -40,12 +41,8 @@ class SimRobot:
         return [float(v) for v in self.task.observe(self.env, False, False)["state"]]
 
     def step(self, action: np.ndarray) -> bool:
-        """Execute one action; True when the episode ended (success)."""
-        _, reward, terminated, _, _ = self.env.step(np.asarray(action, dtype=np.float64))
-        self.row["steps"] += 1
-        self.row["score"] = max(self.row["score"], float(reward))
-        self.row["success"] = self.row["success"] or bool(terminated)
-        return bool(terminated)
+        """Execute one action; True when the episode ended (success, or the task's simulation went unstable)."""
+        return add_step(self.task, self.row, *self.env.step(np.asarray(action, dtype=np.float64))[1:])
 
 
 def sync_episode(client: PolicyClient, seed: int, max_steps: int | None = None,
