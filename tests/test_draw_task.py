@@ -17,6 +17,7 @@ import torch
 
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.models.world_models.config import DynamicsConfig
+from gpc.models.world_models.eval_state import per_step_reward
 from gpc.tasks import get_task
 from gpc.tasks.draw import geometry
 
@@ -82,8 +83,13 @@ def test_the_planning_reward_reads_the_ink_from_the_pens_path():
     assert grad is not None and grad[0, 0, 8:-1].min() > 0 and grad[0, 0, -1] < 0 and grad[:, 1:, :2].abs().sum() > 0
     assert discounted(futures.detach())[0].item() == pytest.approx(sum(0.99**t * f for t, f in enumerate(f1_along)), abs=0.1)
     assert float(geometry.f1_from_summary(along[-1][8:])) == pytest.approx(f1_along[-1], abs=1e-12)
-    # one predicted step: the summary's own F1, exactly (what `gpc eval world-model` reads per state)
+    # one predicted step: the summary's own F1, exactly
     assert reward(futures.detach()[:, -1:])[0].item() == pytest.approx(f1_along[-1], abs=1e-5)
+    # `gpc eval world-model` reads, per step, the reward of the future so far, as the planner would: a future whose
+    # later summaries say nothing was drawn scores as the true one there too (a state at a time, it scored nothing)
+    per_step = per_step_reward(reward, blind)
+    torch.testing.assert_close(per_step, per_step_reward(reward, futures.detach()))
+    assert per_step[0, -1].item() == pytest.approx(f1_along[-1], abs=0.01) and per_step[0, 0] < per_step[0, -1] - 0.05
 
 
 def test_the_ceiling_replays_the_true_canvas():

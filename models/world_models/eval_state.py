@@ -8,7 +8,7 @@ position and the registration distance (mean vertex distance between predicted a
 the planner's reward reads), where the task's layout says they sit; lengths in state units, shown in the
 layout's unit (px, or Block Stacking's metres as mm). The metric keys keep their ``_px`` names.
 
-Given the task's planning reward, each step also reports that reward's error on the predicted state, and the last
+Given the task's planning reward, each step also reports that reward's error on the predicted future so far, and the last
 step the rank correlation across windows of the reward's predicted and recorded *change* over the horizon: what
 ranking chunks needs, and the only figure for a task whose state is no pose (Triangle Drawing's ink), which
 "nothing moves" cannot score (its change is 0 everywhere).
@@ -40,9 +40,11 @@ METRICS = {"object_px": "object {unit}", "object_height": "object height {unit}"
 
 
 def per_step_reward(reward: Any, states: torch.Tensor) -> torch.Tensor:
-    """``(N, T, D)`` states -> ``(N, T)``: the task's reward (built with ``aggregate="final"``) on each state alone."""
-    n, t, d = states.shape
-    return reward(states.reshape(n * t, 1, d)).reshape(n, t)
+    """``(N, T, D)`` future states -> ``(N, T)``: at step t the task's reward (built with ``aggregate="final"``) on
+    the future up to t, as the planner scores a future. A reward that reads each state alone (registration) gives
+    its value on state t; one that reads the whole future (the drawing's ink, grown along the pen's path from the
+    first step's) gives what the planner would see of a chunk that long."""
+    return torch.stack([reward(states[:, : i + 1]) for i in range(states.shape[1])], dim=1)
 
 
 def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
