@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 from faults import inline, one_line
+from tiny_planning import shows_the_chosen_future
 
 from gpc.harness.recipes import RewardSpec, build_reward
 from gpc.tasks import get_task
@@ -81,6 +82,10 @@ def test_every_stage_runs_from_the_cli_and_refuses_another_tasks_files(tmp_path)
         controller = summary["run"]["controller"]  # each option reached the planner, not only the folder name
         assert (controller["controller"], controller.get("world_model")) == labels[name], controller
         assert summary["config"]["seeds"] == [100000, 100001]
+    # `gpc plan`: swap draws no futures of its own, so the chosen candidate's predicted state is drawn beside the scene
+    assert inline("plan", str(policy), "--world-model", str(wm), "-K", "3", "--seed", "100001", "--max-steps", "8",
+                  "--out", str(tmp_path / "plan"))[0] == 0
+    assert shows_the_chosen_future(tmp_path / "plan" / "seed100001.mp4")
     # another task's store, policy or world model: one line naming both tasks, nothing written
     assert inline("collect", "--out", str(pushed), "--episodes", "1", "--no-images", "--max-steps", "30")[0] == 0
     one_line(inline("train", "world-model", "--task", "swap", "--dataset", str(pushed), "--out", str(tmp_path / "mixed"), *train), 2,

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from tiny_planning import shows_the_chosen_future
 from typer.testing import CliRunner
 
 from gpc.cli.main import app
@@ -81,6 +82,12 @@ def test_vision_pipeline_plans_with_frames(tiny_pusht, tmp_path):
     assert "controller.rollouts: absent there, bfloat16 here" in mixed.output and (out / "summary.json").read_bytes() == before
     wrong = CliRunner().invoke(app, [*again, "--precision", "bf16"])
     assert wrong.exit_code != 0 and "--precision 'bf16': use one of bf16-auto, 32-true, bf16-mixed" in wrong.output
+    # `gpc plan` shows image futures: the chosen one's predicted last frame beside the scene (it once crashed on them)
+    res = CliRunner().invoke(app, ["plan", str(policy.last), "--world-model", str(wm.last), "--reward", "learned",
+                                   "--reward-checkpoint", str(reward.last), "-K", "3", "--seed", "100001", "--max-steps", "8",
+                                   "--out", str(tmp_path / "plan")])
+    assert res.exit_code == 0, res.output
+    assert shows_the_chosen_future(tmp_path / "plan" / "seed100001.mp4")
     # the vision ceiling: the true simulator ranks the image policy's proposals, and delivers what it predicted
     vision_ceiling_delivers_its_predictions(PolicyModule.load_from_checkpoint(policy.last))
     ceiling = CliRunner().invoke(app, ["eval", str(policy.last), "--planner", "gt-sim", "-K", "3", "--seeds", "100000:100002",

@@ -54,3 +54,17 @@ def planner(ckpts, **kw) -> Planner:
 
 def gens(seeds, sampling_seed: int = 0):
     return [episode_generator(sampling_seed, s) for s in seeds]
+
+
+def shows_the_chosen_future(mp4: Path) -> bool:
+    """`gpc plan`'s first frame, for a task that overlays no state futures of its own (or image futures): a panel of
+    four with the chosen candidate's predicted last step at the top right, framed in green."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(mp4))
+    ok, bgr = cap.read()
+    cap.release()
+    rgb = bgr[..., ::-1].astype(int)
+    half = rgb.shape[0] // 2
+    border = rgb[1, half + 8 : -8]  # the top-right tile's top edge
+    return bool(ok) and border[:, 1].mean() > 120 and border[:, 0].mean() < 80 and border[:, 2].mean() < 80

@@ -29,9 +29,10 @@ from gpc.harness import interrupts
 from gpc.harness.episode_rows import add_step, new_row
 from gpc.harness.files import write_atomic
 from gpc.harness.memory import keep_freed_memory
+from gpc.harness.video import futures_panel
 from gpc.models.planning.protocols import Controller, Plan
 from gpc.tasks import get_task, register_task, user_tasks
-from gpc.tasks.base import ACTION_KEY, IMAGE_KEY, Task, check_seeds
+from gpc.tasks.base import ACTION_KEY, GOAL_KEY, IMAGE_KEY, Task, check_seeds
 
 
 @dataclass(frozen=True)
@@ -165,12 +166,21 @@ class _Recorder:
 
 def _film_frames(task: Task, env: Any, plan: Plan, i: int, j: int, size: int) -> list[np.ndarray]:
     """Video frames before action ``j`` of episode ``i``: the scene with the planned chunk drawn, and at the
-    decision (``j = 0``) every candidate's predicted future held for half a second, where the task draws them."""
+    decision (``j = 0``) the predicted futures held for half a second: overlaid on the scene where the task draws
+    state futures (Push-T), else the chosen candidate's and the two best others' last predicted steps as pictures."""
     frame = env.frame(size)
     out = []
-    if plan.futures is not None and j == 0 and task.draw_futures is not None and plan.scores is not None:
+    if plan.futures is not None and j == 0 and plan.scores is not None:
         assert plan.chosen is not None
-        out += [task.draw_futures(frame.copy(), plan.futures[i], plan.scores[i], int(plan.chosen[i]))] * 5
+        futures, scores, chosen = plan.futures[i], plan.scores[i], int(plan.chosen[i])
+        if task.draw_futures is not None and futures.ndim == 3:  # state futures the task overlays on the scene
+            out += [task.draw_futures(frame.copy(), futures, scores, chosen)] * 5
+        else:  # the chosen candidate and the two best others, each its predicted last step as a picture
+            shown = [chosen] + [int(k) for k in np.argsort(-scores) if k != chosen][:2]
+            goal = task.observe(env, False, False).get(GOAL_KEY)
+            pictures = [task.render_state(futures[k, -1], goal, size) if futures.ndim == 3
+                        else np.clip(np.rint(futures[k, -1].transpose(1, 2, 0) * 255), 0, 255).astype(np.uint8) for k in shown]
+            out += [futures_panel(frame, pictures, [float(scores[k]) for k in shown], 0)] * 5
     out.append(task.draw_plan(frame, plan.chunk[i][j:], len(plan.actions[i]) - j) if task.draw_plan is not None else frame)
     return out
 

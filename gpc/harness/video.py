@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import cv2
@@ -54,3 +54,24 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: int = 10, sca
         if not done:
             remove_folders(folders)
     return n
+
+
+def futures_panel(frame: np.ndarray, pictures: Sequence[np.ndarray], scores: Sequence[float], chosen: int) -> np.ndarray:
+    """A frame's size in four: the scene (top left) and up to three candidates' predicted last steps, each as a
+    picture ``(S, S, 3)`` uint8, labelled with its score; ``chosen`` (an index into ``pictures``) is framed in green.
+    What the planner saw when it chose, for a task that draws no futures of its own (or image futures)."""
+    size = frame.shape[0]
+    half = size // 2
+    panel = np.full_like(frame, 255)
+    cells = [(0, 0), (0, half), (half, 0), (half, half)]
+    tiles = [frame, *pictures[:3]]
+    for n, ((y, x), tile) in enumerate(zip(cells, tiles)):
+        small = cv2.resize(np.ascontiguousarray(tile, dtype=np.uint8), (half, half), interpolation=cv2.INTER_AREA)
+        panel[y : y + half, x : x + half] = small
+        if n == 0:
+            continue
+        k = n - 1
+        colour = (0, 160, 0) if k == chosen else (90, 90, 90)
+        cv2.rectangle(panel, (x, y), (x + half - 1, y + half - 1), colour, thickness=2 if k == chosen else 1)
+        cv2.putText(panel, f"{scores[k]:.3f}", (x + 4, y + half - 6), cv2.FONT_HERSHEY_SIMPLEX, size / 900, colour, 1, cv2.LINE_AA)
+    return panel
