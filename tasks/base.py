@@ -118,6 +118,7 @@ class Task:
     # The reward planners score predicted states with, by name (``gpc.models.rewards.state``): tasks never import models.
     state_reward: str = "registration"
     info_metrics: tuple[str, ...] = ()  # step-info values whose episode maximum a result records (``<name>_max``)
+    info_minima: tuple[str, ...] = ()  # ... and those whose minimum it records (``<name>_min``: a distance, lower is better)
     draw_plan: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, chunk, executed) -> frame
     draw_futures: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray] | None = None  # (frame, futures, scores, chosen)
     pose_coverage: Callable[[np.ndarray], float] | None = None  # states -> share of the object's pose space visited

@@ -130,6 +130,7 @@ def test_unstable_simulation_truncates_with_zero_reward(tmp_path, monkeypatch) -
     robot.reset(seed=2)
     robot.env.sim.restore(vector)
     assert robot.step(np.array([0.0, 0.0, 0.1, 0.05])) and "diverged" in robot.row["unstable"] and robot.row["steps"] == 1
+    assert "distance_max" not in robot.row and robot.row["distance_min"] >= 0  # the closest the red cube came
     sim = StackSim()
     s = initial_scene(2)
     s[geometry.RED] = s[geometry.BLUE] + [0.005, 0.0, 0.0]  # the cubes inside each other

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -22,6 +23,8 @@ def add_step(task: Task, row: dict[str, Any], reward: float, terminated: bool, t
     row["score"] = max(row["score"], float(reward))
     for m in task.info_metrics:
         row[f"{m}_max"] = max(row[f"{m}_max"], float(info[m]))
+    for m in task.info_minima:
+        row[f"{m}_min"] = min(row.get(f"{m}_min", math.inf), float(info[m]))  # from the first step on
     row["success"] = row["success"] or bool(terminated)
     if truncated:
         row["unstable"] = str(info.get("unstable", "truncated"))
