@@ -148,12 +148,14 @@ def plan_one(
 ) -> None:
     """Run one planner on one seed; the MP4 shows, per decision, the K predicted futures and their rewards."""
     from gpc.harness.evaluation import EvalConfig
+    from gpc.harness.ownership import claim
     from gpc.harness.results import check_out, run_into
 
     if planner == "bc":
         raise typer.BadParameter("gpc plan shows a planner's futures; use `gpc eval CKPT --videos 1` for BC", param_hint="--planner")
     assert planning is not None  # with_planning_options passes them
     check_out(out)
+    claim([out / f"seed{seed}.mp4"])  # the video too, before any model loads or an earlier run's results are replaced
     recipe = recipe_from_options(checkpoint, planner, planning, goal, keep_futures=True, vlm_cache=out / "vlm_cache")
     config = EvalConfig(seeds=(seed,), task=recipe.task, goal=goal, max_steps=max_steps, batch=1, threads=threads,
                         video_dir=str(out), videos=1)
@@ -254,6 +256,12 @@ def eval_ranking(
     k = planning["k"] or 100
     first = proposer() if proposer is not None else None
     replays = ReplayLog.for_proposer(first or next(iter(planners.values()))) if save_replays else None
+    if replays is not None:  # a replay needs history - 1 executed actions before its decision: refused before the work
+        act = (first or next(iter(planners.values()))).n_action_steps
+        need = -(-(replays.history - 1) // act) * act  # the step of the first decision that has them
+        if need >= (max_steps or task.max_episode_steps):
+            raise typer.BadParameter(f"{max_steps}: --save-replays keeps decisions with {replays.history - 1} executed "
+                                     f"actions before them, the first at step {need}; raise it above {need}", param_hint="--max-steps")
     summary = {"scorers_run": recipes, "seeds": seeds, "k": k, "max_steps": max_steps,
                **probe_ranking(planners, task, tuple(parse_seeds(seeds)), k, max_steps, batch, goal, first, replays)}
     report = markdown(summary, f"Ranking probed: {', '.join(planners) or 'no scorer'}, K={k}, seeds {seeds}, {max_steps} steps")

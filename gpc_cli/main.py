@@ -177,6 +177,9 @@ def export(
     if out.exists() and not overwrite:
         raise DataError(f"{out}: already exists; choose another --out or pass --overwrite")
     ckpt = read_checkpoint(path, None)
+    if "state_dict" not in ckpt:  # a checkpoint of checkpoints (gpc ensemble's): nothing of its own to slim
+        raise DataError(f"{path}: a {ckpt['gpc'].get('kind')!r} checkpoint holds no network of its own to export "
+                        "(gpc ensemble --half writes its members slim)")
     adopt([out], older_export)
     buffer = io.BytesIO()
     torch.save(for_planning(ckpt, half), buffer)

@@ -122,6 +122,8 @@ def test_gpc_eval_plans_with_an_ensemble_and_its_rule_is_part_of_the_run(models,
     again = gpc("eval", *common, "--world-model", str(mean), "--out", str(out), "--resume")
     assert again.exit_code == 2 and "checkpoints" in again.output, again.output  # another run, refused by name
     assert json.loads((out / "summary.json").read_text()) == summary  # and nothing written was touched
+    slim = gpc("export", str(mean), "--out", str(tmp_path / "slim.ckpt"))  # nothing of its own to export: one line
+    assert slim.exit_code == 2 and "holds no network of its own" in slim.output and not (tmp_path / "slim.ckpt").exists()
 
 
 @pytest.mark.parametrize("case", ["one member", "a policy", "another history", "negative pessimism", "out is a member"])

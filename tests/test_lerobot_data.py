@@ -244,3 +244,11 @@ def test_export_without_images_leaves_the_frames_out(store, tmp_path):
     assert cli.invoke(app, ["data", "import", str(tmp_path / "lr"), "--out", str(tmp_path / "s.zarr")]).exit_code == 0
     got = EpisodeStore.open(tmp_path / "s.zarr")
     assert "img" not in got.keys and np.array_equal(got.read("state"), EpisodeStore.open(store).read("state"))
+
+
+def test_export_refuses_a_task_the_store_is_not_of(tmp_path):
+    """A swap store exported as Push-T would read the cube's pose as the T's: refused in one line, nothing written."""
+    collect(CollectJob(task="swap", out=tmp_path / "swap.zarr", episodes=1, images=False, max_steps=10))
+    result = cli.invoke(app, ["data", "export", str(tmp_path / "swap.zarr"), "--out", str(tmp_path / "lr"), "--task", "pusht"])
+    assert result.exit_code == 2 and "a store of task swap, not of task pusht (--task)" in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "lr").exists()

@@ -170,6 +170,13 @@ def test_cli_eval_plan_and_compare(ckpts, tmp_path):
                               "--max-steps", "16", "--out", str(tmp_path / "plan")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "plan" / "seed100001.mp4").stat().st_size > 1000
+    # a video there that gpc did not write is refused before any work, and the results beside it are kept
+    (tmp_path / "plan" / "seed100002.mp4").write_bytes(b"mine")
+    before = (tmp_path / "plan" / "summary.json").read_bytes()
+    res = runner.invoke(app, ["plan", ckpts["policy"], "--world-model", ckpts["wm"], "-K", "3", "--seed", "100002",
+                              "--max-steps", "16", "--out", str(tmp_path / "plan"), "--overwrite"])
+    assert res.exit_code == 2 and "seed100002.mp4: exists and was not written by gpc" in res.output
+    assert (tmp_path / "plan" / "summary.json").read_bytes() == before and (tmp_path / "plan" / "seed100002.mp4").read_bytes() == b"mine"
 
 
 def test_compare_tells_apart_runs_of_one_controller():

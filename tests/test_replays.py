@@ -80,15 +80,17 @@ def test_a_world_model_trains_on_the_replays_beside_its_data(ckpts, replays, tmp
     assert run.last.exists()
 
 
-@pytest.mark.parametrize("case", ["exists", "nothing"])
+@pytest.mark.parametrize("case", ["exists", "nothing", "too short"])
 def test_refusals_name_the_option_and_write_nothing(ckpts, tmp_path, case):
     target = tmp_path / "replays.zarr"
     if case == "exists":
         target.mkdir()
         (target / "mine.txt").write_text("keep")
     args = ["eval", "ranking", ckpts["policy"], "--seeds", "70000:70001", "--max-steps", "8", "--out", str(tmp_path / "p.md")]
-    res = CliRunner().invoke(app, args + (["--save-replays", str(target)] if case == "exists" else []))
+    res = CliRunner().invoke(app, args + (["--save-replays", str(target)] if case != "nothing" else []))
     assert res.exit_code == 2
-    assert ("already exists; --save-replays writes a new store" if case == "exists" else "--save-replays STORE") in res.output
+    expect = {"exists": "already exists; --save-replays writes a new store", "nothing": "--save-replays STORE",
+              "too short": "the first at step 8; raise it above 8"}[case]  # 8 steps: one decision, none executed before it
+    assert expect in res.output and len(res.output.strip().splitlines()) == 1, res.output
     assert not (tmp_path / "p.md").exists() and not (tmp_path / "p.json").exists()
     assert case != "exists" or (target / "mine.txt").read_text() == "keep"

@@ -67,6 +67,9 @@ def export_store(store_path: Path, out: Path, video: str = "lossless", task: str
     """A gpc store as a LeRobot v3.0 dataset in ``out`` (a new directory); ``images=False`` leaves the frames out
     (a keypoint policy trains faster without LeRobot decoding a video it never reads)."""
     store = EpisodeStore.open(store_path)
+    recorded = store.attrs.get("task")
+    if task and recorded and task != recorded:  # its states would be read as another task's
+        raise DataError(f"{store_path}: a store of task {recorded}, not of task {task} (--task)")
     chosen = _lerobot_task(get_task(task or task_of(store) or DEFAULT_TASK))
     if store.n_episodes == 0:
         raise DataError(f"{store_path}: holds no episodes")
