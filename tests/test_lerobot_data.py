@@ -252,3 +252,22 @@ def test_export_refuses_a_task_the_store_is_not_of(tmp_path):
     result = cli.invoke(app, ["data", "export", str(tmp_path / "swap.zarr"), "--out", str(tmp_path / "lr"), "--task", "pusht"])
     assert result.exit_code == 2 and "a store of task swap, not of task pusht (--task)" in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1 and not (tmp_path / "lr").exists()
+
+
+@pytest.mark.parametrize("damage,expect", [
+    ("[]", "not gpc's record of an export"),
+    ("seeds", "episode_seeds: want a list of 2"),
+    ("dtype", "keys.state: want a shape of sizes and a numpy dtype"),
+])
+def test_a_damaged_export_record_is_one_line(store, tmp_path, damage, expect):
+    assert cli.invoke(app, ["data", "export", str(store), "--out", str(tmp_path / "lr"), "--no-images"]).exit_code == 0
+    meta = tmp_path / "lr" / "meta" / "gpc.json"
+    record = json.loads(meta.read_text())
+    if damage == "seeds":
+        record["gpc"]["episode_seeds"] = record["gpc"]["episode_seeds"][:1]
+    elif damage == "dtype":
+        record["gpc"]["keys"]["state"]["dtype"] = "float99"
+    meta.write_text("[]" if damage == "[]" else json.dumps(record))
+    result = cli.invoke(app, ["data", "import", str(tmp_path / "lr"), "--out", str(tmp_path / "s.zarr")])
+    assert result.exit_code == 2 and expect in result.output and len(result.output.strip().splitlines()) == 1, result.output
+    assert not (tmp_path / "s.zarr").exists()

@@ -109,16 +109,35 @@ def _restore(features: dict[str, np.ndarray], keys: dict[str, Any]) -> dict[str,
     return out
 
 
+def _gpc_record(path: Path, episodes: int) -> dict[str, Any]:
+    """What gpc's export recorded beside a dataset, checked before it is trusted: a damaged one is named in one line."""
+    from gpc.harness.files import read_json
+
+    record = read_json(path)
+    record = record.get("gpc") if isinstance(record, dict) else None
+    if not isinstance(record, dict) or not isinstance(record.get("attrs"), dict) or not isinstance(record.get("keys"), dict):
+        raise DataError(f"{path}: not gpc's record of an export (want {{'gpc': {{'attrs': {{...}}, 'keys': {{...}}}}}})")
+    for key, spec in record["keys"].items():
+        try:
+            np.dtype(spec["dtype"])
+            ok = all(isinstance(n, int) and n >= 0 for n in spec["shape"])
+        except (TypeError, KeyError):
+            ok = False
+        if not ok:
+            raise DataError(f"{path}: keys.{key}: want a shape of sizes and a numpy dtype, got {spec!r}"[:300])
+    for name in ("episode_seeds", "episode_scores"):
+        values = record.get(name)
+        if values is not None and (not isinstance(values, list) or len(values) != episodes):
+            raise DataError(f"{path}: {name}: want a list of {episodes} (one per episode of the dataset)")
+    return record
+
+
 def import_dataset(src: Path, out: Path, task: str | None = None) -> dict[str, Any]:
     """A LeRobot dataset as a gpc store in ``out`` (a new store): exactly, if gpc exported it."""
     if not is_lerobot_dataset(src):
         raise DataError(f"{src}: not a LeRobot dataset (no meta/info.json)")
     reader = LeRobotReader(src)
-    record = None
-    if (src / "meta" / META).is_file():
-        from gpc.harness.files import read_json
-
-        record = read_json(src / "meta" / META).get("gpc")
+    record = _gpc_record(src / "meta" / META, reader.n_episodes) if (src / "meta" / META).is_file() else None
     chosen = _lerobot_task(get_task(task or (record or {}).get("task") or DEFAULT_TASK))
     _check_new(out)
     attrs = dict(record["attrs"]) if record else {"task": chosen.name}
