@@ -73,9 +73,10 @@ def record(
 
     The episodes are those `gpc eval` scores for these seeds: e.g. the chunks GPC-OPT's ascent executes, with their
     true outcomes, to train the world model where the planner goes. Re-running the same command resumes it."""
-    from gpc.harness.collection import CLOSED_LOOP, CollectJob
+    from gpc.harness.collection import CLOSED_LOOP, CollectJob, check_store_out
 
     assert planning is not None  # with_planning_options passes them
+    check_store_out(out, overwrite)  # before any model loads; the rest of the checks need the controller's identity
     backend = backend_from_options(scale, planning["device"])
     recipe = recipe_from_options(checkpoint, planner, planning, goal, remote=backend is not None)
     assert recipe.task is not None  # make_recipe names the task

@@ -82,3 +82,12 @@ def test_record_stores_the_episodes_eval_scores(tiny_pusht, tmp_path):
     wm = train(WorldModelModule, world_model_profile("tiny", 1, LAYOUT).config, [tiny_pusht["store"], store_path],
                RunConfig(run_dir=tmp_path / "wm", max_steps=2, batch_size=8, progress=False, accelerator="cpu"))
     assert wm.last.exists()
+
+
+def test_a_bad_out_is_refused_before_any_model_loads(tmp_path):
+    """The path alone refuses it: the checkpoints named (here, none there) are never read."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    res = runner.invoke(app, ["record", str(tmp_path / "missing.ckpt"), "--planner", "opt", "--world-model",
+                              str(tmp_path / "missing-wm.ckpt"), "--out", str(notes)])
+    assert res.exit_code == 2 and "notes.txt: is a file, not a store" in res.output and notes.read_text() == "mine"

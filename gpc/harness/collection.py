@@ -167,22 +167,28 @@ def _real(out: Path) -> Path:
     return Path(os.path.realpath(out))
 
 
-def check_job(job: CollectJob) -> None:
-    """Refuse, reading only, a ``--out`` the job may not write (before its lock exists: nothing is left behind)."""
-    out = Path(job.out)
+def check_store_out(out: Path, overwrite: bool) -> None:
+    """What ``check_job`` can refuse from the path alone: run first where the job needs models loaded to be known."""
+    out = Path(out)
     check_free(out, "store")  # a store another process is writing: its pid, not what its half-made records say
     new, old, journal = _staging(_real(out))
-    for place in (new, old) if job.overwrite else ():  # gpc's own staging places, touched only as it left them
+    for place in (new, old) if overwrite else ():  # gpc's own staging places, touched only as it left them
         if (place.exists() or place.is_symlink()) and not (_wrote(place) and (place == new or journal.exists())):
             raise DataError(f"{place}: is in the way of {out} (gpc stages a store being replaced there) and is not "
                             "one gpc left there; move it away")
     if not out.exists():
         check_out(out.parent)
-    elif job.overwrite:
+    elif overwrite:
         _ours(out)
     elif not out.is_dir():
         raise DataError(f"{out}: is a file, not a store; choose another --out")
-    else:
+
+
+def check_job(job: CollectJob) -> None:
+    """Refuse, reading only, a ``--out`` the job may not write (before its lock exists: nothing is left behind)."""
+    out = Path(job.out)
+    check_store_out(out, job.overwrite)
+    if out.is_dir() and not job.overwrite:
         store = EpisodeStore.open(out)
         _matching(store, job.provenance(), out)
         if store.n_episodes:  # the rows it holds are the task's (a store edited by hand is refused, not grown)
