@@ -31,6 +31,7 @@ from gpc.harness.files import write_atomic
 from gpc.harness.memory import keep_freed_memory
 from gpc.harness.video import futures_panel
 from gpc.models.planning.protocols import Controller, Plan
+from gpc.models.world_models.pictures import last_step_pictures
 from gpc.tasks import get_task, register_task, user_tasks
 from gpc.tasks.base import ACTION_KEY, GOAL_KEY, IMAGE_KEY, Task, check_seeds
 
@@ -178,8 +179,7 @@ def _film_frames(task: Task, env: Any, plan: Plan, i: int, j: int, size: int) ->
         else:  # the chosen candidate and the two best others, each its predicted last step as a picture
             shown = [chosen] + [int(k) for k in np.argsort(-scores) if k != chosen][:2]
             goal = task.observe(env, False, False).get(GOAL_KEY)
-            pictures = [task.render_state(futures[k, -1], goal, size) if futures.ndim == 3
-                        else np.clip(np.rint(futures[k, -1].transpose(1, 2, 0) * 255), 0, 255).astype(np.uint8) for k in shown]
+            pictures = last_step_pictures(futures[shown], lambda s, g: task.render_state(s, g, size), goal)
             out += [futures_panel(frame, pictures, [float(scores[k]) for k in shown], 0)] * 5
     out.append(task.draw_plan(frame, plan.chunk[i][j:], len(plan.actions[i]) - j) if task.draw_plan is not None else frame)
     return out

@@ -29,6 +29,8 @@ import cv2
 import numpy as np
 import torch
 
+from gpc.models.world_models.pictures import last_step_pictures
+
 log = logging.getLogger(__name__)
 
 DEFAULT_PROMPT = (
@@ -182,21 +184,7 @@ class VLMReward:
 
     def final_frames(self, futures: torch.Tensor, goal: Any = None) -> np.ndarray:
         """``(K, T, ...)`` -> ``(K, S, S, 3)`` uint8 frames of the last predicted step, S = frame_size."""
-        last = futures[:, -1].detach().cpu()
-        if futures.dim() == 5:  # frames already
-            if last.shape[1] == 3:
-                last = last.permute(0, 2, 3, 1)
-            elif last.shape[-1] != 3:
-                raise ValueError(f"frame futures: expected (K, T, 3, H, W) or (K, T, H, W, 3), got {tuple(futures.shape)}")
-            array = last.numpy()
-            frames = list(array if array.dtype == np.uint8 else np.round(np.clip(array, 0, 1) * 255).astype(np.uint8))
-        elif futures.dim() == 3:
-            if self.render is None:
-                raise ValueError("state futures (K, T, D) need a render function")
-            goals = _per_candidate(goal, futures.shape[0])
-            frames = [np.asarray(self.render(s, g)) for s, g in zip(last.numpy(), goals)]
-        else:
-            raise ValueError(f"futures: expected (K, T, D) states or (K, T, 3, H, W) frames, got {tuple(futures.shape)}")
+        frames = last_step_pictures(futures, self.render, goal)
         size = self.config.frame_size
         out = np.empty((len(frames), size, size, 3), np.uint8)
         for i, frame in enumerate(frames):
@@ -327,14 +315,6 @@ class VLMReward:
             except OSError:  # a full or read-only disk costs the cache, never the eval
                 tmp.unlink(missing_ok=True)
                 self._stats["cache_write_failures"] = self._stats.get("cache_write_failures", 0) + 1
-
-
-def _per_candidate(goal: Any, k: int) -> list[np.ndarray | None]:
-    """A goal shared by all candidates ``(G,)`` or one per candidate ``(K, G)`` -> K goals."""
-    if goal is None:
-        return [None] * k
-    goal = goal.detach().cpu().numpy() if isinstance(goal, torch.Tensor) else np.asarray(goal)
-    return list(goal) if goal.ndim == 2 else [goal] * k
 
 
 def _one_hot(futures: torch.Tensor, index: int) -> torch.Tensor:
