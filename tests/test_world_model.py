@@ -369,16 +369,16 @@ def test_two_models_meet_on_the_episodes_one_of_them_held_out(phase1, store, tmp
 def test_a_3d_object_is_judged_on_its_height_and_reported_in_the_tasks_unit():
     """Block Stacking's red cube lifted 2 cm, nothing else wrong: the height error is 2 cm, the planar one 0, and the
     table shows them in mm (its state is in metres); Push-T's table keeps px."""
-    from gpc.models.world_models.eval_state import _errors, markdown_table
+    from gpc.models.world_models.eval_state import markdown_table, state_errors
     from gpc.tasks.stack import LAYOUT as STACK
 
     true = torch.zeros(3, 4, STACK.state.dim)
     pred = true.clone()
     pred[..., STACK.primary.height] += 0.02
-    errors = _errors(pred, true, STACK)
+    errors = state_errors(pred, true, STACK)
     torch.testing.assert_close(errors["object_height"], torch.full((3, 4), 0.02))
     assert errors["object_px"].abs().max() == 0 and errors["agent_px"].abs().max() == 0
-    assert "object_height" not in _errors(torch.zeros(2, 3, LAYOUT.state.dim), torch.zeros(2, 3, LAYOUT.state.dim), LAYOUT)
+    assert "object_height" not in state_errors(torch.zeros(2, 3, LAYOUT.state.dim), torch.zeros(2, 3, LAYOUT.state.dim), LAYOUT)
     steps = [{"step": 1, "model": {k: float(v.mean()) for k, v in errors.items()}, "baseline": {k: 0.0 for k in errors}}]
     report = {"windows": 3, "split": "val", "episodes": 1, "history": 2, "horizon": 1, "steps": steps,
               "mean_over_steps": steps[0], "unit": STACK.unit, "unit_scale": STACK.unit_scale}

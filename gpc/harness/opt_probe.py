@@ -26,7 +26,7 @@ from gpc.models.planning.ascent import AscentTrace
 from gpc.models.planning.objective import GOAL_KEY, Objective, PartTimer
 from gpc.models.planning.planner import Planner
 from gpc.models.planning.protocols import Plan
-from gpc.models.rewards.registration import layout_registration
+from gpc.models.world_models.eval_state import state_errors
 from gpc.tasks import get_task
 from gpc.tasks.base import Task
 
@@ -95,13 +95,8 @@ class ProbingPlanner:
         layout = self.task.layout
         nan = torch.full(predicted.shape[:2], float("nan"))
         if predicted.dim() == 4:  # state futures
-            pred, true = predicted[:, :, -1], true_states[:, :, -1]
-            if layout.objects:
-                return layout_registration(pred, true, layout), nan
-            if layout.state.agent_xy:  # nothing to register (a drawing): the agent's (the pen's) distance
-                xy = list(layout.state.agent_xy)
-                return (pred[..., xy] - true[..., xy]).norm(dim=-1), nan
-            return nan, nan
+            errors = state_errors(predicted[:, :, -1], true_states[:, :, -1], layout)
+            return errors.get("registration_px", errors.get("agent_px", nan)), nan  # a drawing registers nothing: the pen
         frameskip = true_states.shape[2] // predicted.shape[2]
         last = true_states[:, :, predicted.shape[2] * frameskip - 1].numpy()
         goals_np = [None] * len(last) if goal is None else goal.numpy()  # drawn as the camera shows it (swap's targets)

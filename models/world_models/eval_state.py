@@ -47,7 +47,7 @@ def per_step_reward(reward: Any, states: torch.Tensor) -> torch.Tensor:
     return torch.stack([reward(states[:, : i + 1]) for i in range(states.shape[1])], dim=1)
 
 
-def _errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
+def state_errors(pred: torch.Tensor, true: torch.Tensor, layout: TaskLayout) -> dict[str, torch.Tensor]:
     """``(N, T, D)`` each -> metric name -> ``(N, T)`` errors (an object metric: the mean over the task's objects)."""
     out = {"object_px": torch.stack([(pred[..., list(o.pose[:2])] - true[..., list(o.pose[:2])]).norm(dim=-1)
                                      for o in layout.objects]).mean(dim=0)} if layout.objects else {}
@@ -129,7 +129,7 @@ def evaluate_rollouts(
         if reward is not None:
             now, true_r = per_step_reward(reward, hist[:, -1:])[:, 0], per_step_reward(reward, true)
         for name, guess in (("model", pred), ("baseline", still)):
-            errors = _errors(guess, true, layout)
+            errors = state_errors(guess, true, layout)
             if reward is not None:
                 guess_r = per_step_reward(reward, guess)
                 errors["reward"] = (guess_r - true_r).abs()
