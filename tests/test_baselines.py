@@ -126,7 +126,7 @@ def test_a_users_planner_registers_by_name_and_runs_like_the_built_in_ones(train
     assert int(plan.chosen[0]) == 4 and recipe.summary()["controller"] == "last K=5"
 
 
-@pytest.mark.parametrize(("fixture", "bar"), [("latent", 0.4), ("latent_history", 0.5)])
+@pytest.mark.parametrize(("fixture", "bar"), [("latent", 0.4), pytest.param("latent_history", 0.5, marks=pytest.mark.extended)])
 def test_the_rssm_imagines_the_rewards_its_posterior_reads_from_the_true_observations(trained, fixture, bar, request):
     """Along stored expert episodes' actions, the reward imagined with prior latents from the first observation agrees
     with the reward head on the posterior latents of the observations really reached, and with the true reward: over

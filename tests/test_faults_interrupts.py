@@ -25,7 +25,8 @@ def uninterrupted(tmp_path_factory) -> Path:
     return clean
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+# make test stops collection with SIGTERM and training with SIGINT (Ctrl-C); make test-extended sends each the other too
+@pytest.mark.parametrize("sig,code", [pytest.param(signal.SIGINT, 130, marks=pytest.mark.extended), (signal.SIGTERM, 143)])
 def test_a_stopped_collection_says_what_it_kept_and_resumes_to_the_same_store(tmp_path, uninterrupted, sig, code):
     out = tmp_path / "s.zarr"
     proc = spawn("collect", "--out", str(out), "--episodes", "8", "--no-images", "--max-steps", "120")
@@ -115,7 +116,7 @@ def test_a_stopped_or_killed_eval_resumes_to_the_results_of_an_uninterrupted_one
     assert rows(out) == rows(clean) and not (out / ".groups").exists()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])  # SIGTERM: what Slurm's preemption sends
+@pytest.mark.parametrize("sig", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.extended)])  # SIGTERM: Slurm's preemption
 def test_a_stopped_training_keeps_its_last_step_and_resumes(tiny_pusht, tmp_path, sig):
     run = tmp_path / "run"
     args = ["train", "policy", "--dataset", str(tiny_pusht["store"]), "--out", str(run), "--profile", "tiny", "--max-steps", "300",

@@ -97,7 +97,7 @@ def test_refusing_a_store_of_another_kind_opens_it_read_only(tmp_path):
 # ---------------------------------------------------------------------- one writer at a time
 def test_a_second_collection_into_the_same_store_fails_at_once_naming_the_first(tmp_path):
     out, clean = tmp_path / "s.zarr", tmp_path / "clean.zarr"
-    job = ["--episodes", "12", "--explore", "--no-images", "--max-steps", "300"]
+    job = ["--episodes", "3", "--explore", "--no-images", "--max-steps", "150"]
     first = spawn("collect", "--out", str(out), *job)
     wait_for(lambda: EpisodeStore.open(out).n_episodes >= 1)
     first.send_signal(signal.SIGSTOP)  # paused mid-collection: the second always meets a writer still at work

@@ -30,6 +30,7 @@ def run(args: list[str], cwd: Path, timeout: int = 600) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # make test-extended (3 min of pip); make test checks the package list in test_packaging
 def test_gpc_and_hugging_face_datasets_share_one_environment(tmp_path):
     venv = tmp_path / "venv"
     run([sys.executable, "-m", "venv", str(venv)], tmp_path)

@@ -164,6 +164,7 @@ def test_backend_and_device_options_are_checked_before_any_work(tiny_pusht, tmp_
     assert recipe.summary()["device"] == "cuda" and "device" not in dataclasses.replace(recipe, device="cpu").summary()
 
 
+@pytest.mark.extended  # make test-extended: a minute of Ray start-ups
 def test_a_cluster_started_here_runs_more_workers_than_cores_and_a_short_one_refuses(tmp_path):
     """gpc's own cluster offers what the workers reserve (Ray would otherwise wait for the missing ones without end);
     a cluster that offers less (no GPU here for --worker-gpus 1) is refused in one line, before any episode."""

@@ -11,7 +11,7 @@ from test_reproduce import run_baselines_smoke, run_state_smoke, run_vision_smok
 
 
 @pytest.mark.slow
-@pytest.mark.extended  # make test-extended: CI's 15 minutes hold the swap pipeline, not every task's
+@pytest.mark.extended  # make test-extended: CI's 15 minutes hold the Push-T pipelines, not every task's
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_the_draw_task_runs_the_same_stages(tmp_path):
     """Collection, training, ranking, ascent through the drawing's own reward on states, and the ceiling; then vision:

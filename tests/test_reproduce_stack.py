@@ -15,7 +15,7 @@ from gpc.datasets.store import EpisodeStore
 
 
 @pytest.mark.slow
-@pytest.mark.extended  # make test-extended: CI's 15 minutes hold the swap pipeline, not every task's
+@pytest.mark.extended  # make test-extended: CI's 15 minutes hold the Push-T pipelines, not every task's
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_the_stack_task_runs_the_same_stages(tmp_path):
     """Collection, both trainings, ranking, ascent and the ceiling replaying MuJoCo, on 4-d actions and 18-d states; then

@@ -17,6 +17,7 @@ from gpc.datasets.store import EpisodeStore
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # make test-extended: CI's 15 minutes hold the Push-T pipelines; swap's stages run in test_swap_task
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_the_swap_task_runs_the_same_stages(tmp_path):
     """`make reproduce TASK=swap PROFILE=smoke`, then its vision pipeline: the same stages for a second task, its own
