@@ -33,6 +33,7 @@ def test_rows_replace_the_same_settings_latest_figures(tmp_path):
     assert len(rows) == 4 and sum("| b |" in r for r in rows) == 2 and "riscv64 RVV" in rows[0]
 
 
+@pytest.mark.extended  # make test-extended (half a minute); make test checks the tables' rows above and below
 def test_every_benchmark_runs_small_and_writes_its_table(tmp_path):
     doc = tmp_path / "bench.md"
     common.publish("policy", "policy", ["work", "setting", "throughput", "latency (median)", "target"],

@@ -19,7 +19,7 @@ import torch
 
 from gpc.harness.collection import CollectJob, collect
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.extended]  # make test-extended; make test runs two processes on one node (test_policy)
 
 
 def _free_port() -> int:

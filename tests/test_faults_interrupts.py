@@ -83,6 +83,7 @@ def test_a_second_signal_ends_the_parallel_workers_with_their_parent(tmp_path):
     wait_for(lambda: not any(Path(f"/proc/{pid}").exists() for pid in workers), timeout=10)
 
 
+@pytest.mark.extended  # make test-extended: recording writes through collection's store writer, stopped above
 def test_a_stopped_recording_keeps_whole_episodes_and_resumes_to_the_same_store(tiny_pusht, tmp_path):
     """`gpc record` (a planner's closed-loop episodes): SIGTERM between lockstep groups (of one), then the same command."""
     args = lambda out: ("record", str(tiny_pusht["policy"]), "--planner", "opt", "-M", "2", "--world-model",  # noqa: E731

@@ -1,5 +1,6 @@
 """The parts of the Push-T smoke pipeline that make test leaves to make test-extended for CI's 15 minutes: the vision
-baselines, the ascent probe and the random-goal pipeline, each on the same smoke data as test_reproduce's."""
+pipeline and its baselines, the ascent probe and the random-goal pipeline, on the same smoke settings as
+test_reproduce's state pipeline."""
 
 from __future__ import annotations
 
@@ -14,14 +15,22 @@ from test_reproduce import ROOT, run_vision_baselines_smoke, run_vision_smoke
 
 
 @pytest.mark.slow
-@pytest.mark.extended  # make test-extended: five minutes beyond test_reproduce's pipeline
+@pytest.mark.extended  # make test-extended: eight minutes beyond test_reproduce's
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_vision_baselines_the_probe_and_a_random_goal_on_the_smoke_pipeline(tmp_path):
     venv = Path(sys.executable).parent.parent
     args = ["make", "-s", "reproduce-pusht", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={tmp_path / 'runs'}",
             f"RESULTS={tmp_path / 'results'}", "WORKERS=1"]
     vargs = [a.replace("reproduce-pusht", "reproduce-pusht-vision") for a in args]
-    vres, _, _ = run_vision_smoke(vargs, tmp_path, "pusht")
+    vres, shared, runs = run_vision_smoke(vargs, tmp_path, "pusht")
+    plain = subprocess.run(vargs + ["VWM_PLAN=student", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert plain.returncode == 0 and "--world-model " + str(runs / "wm-visual-1step" / "checkpoints" / "last.ckpt") in plain.stdout
+    assert str(shared / "vopt-M2") in plain.stdout and "--planner gt-sim" not in plain.stdout  # the ceiling is shared
+    teacher = subprocess.run(vargs + ["VWM_PLAN=teacher", "-n"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert teacher.returncode == 0 and "--world-model " + str(runs / "wm-visual-phase2" / "checkpoints" / "last.ckpt") in teacher.stdout
+    assert "wm-visual-1step" not in teacher.stdout and "results-vision-teacher" in teacher.stdout
+    other = subprocess.run(vargs + ["SEEDS=100005:100007"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert other.returncode != 0 and "holds results for seeds 100000:100002, not 100005:100007 (SEEDS)" in other.stderr
     run_vision_baselines_smoke(vargs, tmp_path, "pusht")
     probe = subprocess.run(vargs[:2] + ["probe-opt-vision"] + vargs[3:], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
