@@ -8,12 +8,12 @@ install of this checkout: what a user's `pip install` builds). Both packages imp
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from test_packaging import copy_project
 
 ROOT = Path(__file__).resolve().parents[1]
 TORCH_SPEC = os.environ.get("TORCH_SPEC", "torch==2.13.0")  # the Makefile's: the small CPU build
@@ -37,14 +37,7 @@ def test_gpc_and_hugging_face_datasets_share_one_environment(tmp_path):
     python, gpc = venv / "bin" / "python", venv / "bin" / "gpc"
     run([str(python), "-m", "pip", "install", "-q", "--no-compile", "datasets"], tmp_path)
     run([str(python), "-m", "pip", "install", "-q", "--no-compile", TORCH_SPEC], tmp_path)
-    source = tmp_path / "source"  # the project's files only: a build in the checkout would leave build/ behind
-    source.mkdir()
-    listing = ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"]
-    files = subprocess.run(listing, cwd=ROOT, capture_output=True, check=True).stdout.split(b"\0")
-    for name in filter(None, (f.decode() for f in files)):
-        if (ROOT / name).is_file():
-            (source / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / name, source / name)
+    source = copy_project(tmp_path / "source")
     run([str(python), "-m", "pip", "install", "-q", "--no-compile", str(source)], tmp_path)
     probe = ("import datasets, gpc.datasets, gpc.models.policy.module, gpc.harness.evaluation, gpc.cli.main; "
              "assert 'site-packages/datasets/' in datasets.__file__, datasets.__file__; "

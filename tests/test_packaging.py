@@ -7,6 +7,7 @@ were. The full install beside Hugging Face's `datasets` is test_install's (make 
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -30,14 +31,19 @@ def tracked_modules() -> set[str]:
     return out
 
 
-@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="needs the git checkout")
-def test_the_wheel_holds_every_tracked_module(tmp_path):
-    source = tmp_path / "source"  # the tracked files only: a build in the checkout would leave build/ behind
-    listing = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout.split(b"\0")
-    for name in filter(None, (f.decode() for f in listing)):
+def copy_project(source: Path) -> Path:
+    """The project's files (tracked and not ignored) copied to ``source``: a build in the checkout would leave build/."""
+    listing = ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"]
+    for name in filter(None, (f.decode() for f in subprocess.run(listing, cwd=ROOT, capture_output=True, check=True).stdout.split(b"\0"))):
         if (ROOT / name).is_file():
             (source / name).parent.mkdir(parents=True, exist_ok=True)
-            (source / name).write_bytes((ROOT / name).read_bytes())
+            shutil.copy2(ROOT / name, source / name)
+    return source
+
+
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="needs the git checkout")
+def test_the_wheel_holds_every_tracked_module(tmp_path):
+    source = copy_project(tmp_path / "source")
     done = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", str(source),
                            "-w", str(tmp_path / "wheel")], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
