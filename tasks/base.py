@@ -90,6 +90,10 @@ class EpisodeStats:
     contact_fraction: float  # share of steps with the agent touching the object (0 when the task does not count)
 
 
+def _score_reaches_one(scores: np.ndarray) -> np.ndarray:
+    return np.asarray(scores) >= 1.0
+
+
 @dataclass(frozen=True)
 class Task:
     """One task, as collection, training, planning and evaluation see it."""
@@ -111,10 +115,10 @@ class Task:
     # (a store's arrays by key (``state``, and ``goal`` where it holds one), episode ends) -> each episode's score
     episode_scores: Callable[[Mapping[str, np.ndarray], np.ndarray], np.ndarray]
     max_episode_steps: int = 300
-    # An episode whose score is at least this succeeded, where success is a function of the score alone (Push-T: a
-    # score of 1 is coverage 0.95); None where it is not (both of swap's objects, stacking's settled steps): a store's
-    # summary then reports no success rate rather than a wrong one.
-    success_score: float | None = 1.0
+    # Episode scores -> which succeeded, where success is a function of the score alone (Push-T: a score of 1, coverage
+    # 0.95; drawing: an F1 above 0.9, as its env says); None where it is not (both of swap's objects, stacking's settled
+    # steps): a store's summary then reports no success rate rather than a wrong one.
+    succeeded: Callable[[np.ndarray], np.ndarray] | None = _score_reaches_one
     # The reward planners score predicted states with, by name (``gpc.models.rewards.state``): tasks never import models.
     state_reward: str = "registration"
     info_metrics: tuple[str, ...] = ()  # step-info values whose episode maximum a result records (``<name>_max``)

@@ -147,6 +147,15 @@ def test_a_stores_success_rate_is_the_tasks_not_push_ts(tmp_path):
     assert code == 0 and "mean" in json.loads(out)["score"] and "success_rate" not in json.loads(out)["score"]
 
 
+def test_a_drawing_scoring_exactly_the_threshold_did_not_succeed():
+    """The env's success is an F1 above 0.9; a store's summary must count it the same way, not as Push-T's "at least"."""
+    from gpc.tasks import get_task
+
+    scores = np.array([geometry.SUCCESS_F1, np.nextafter(geometry.SUCCESS_F1, 1.0), 0.5])
+    assert get_task("draw").succeeded(scores).tolist() == [False, True, False]
+    assert get_task("pusht").succeeded(np.array([0.999, 1.0])).tolist() == [False, True]
+
+
 def test_the_ascent_probe_measures_a_drawing_by_the_pen(tmp_path):
     """No object to register: the probe's world-model error is the pen's distance (it once stacked no outlines)."""
     from faults import inline

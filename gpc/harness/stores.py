@@ -50,8 +50,8 @@ def describe_store(path: Path) -> dict[str, Any]:
             info["score_note"] = f"no scores: {exc}"
             scores = None
     if scores is not None and store.n_episodes:
-        threshold = get_task(task_name).success_score if task_name else None
-        info["score"] = _stats(scores) | ({} if threshold is None else {"success_rate": float(np.mean(scores >= threshold))})
+        succeeded = get_task(task_name).succeeded if task_name else None
+        info["score"] = _stats(scores) | ({} if succeeded is None else {"success_rate": float(np.mean(succeeded(scores)))})
     coverage = get_task(task_name).pose_coverage if task_name else None
     if coverage is not None and "state" in store.keys and store.n_steps:
         info["pose_coverage"] = float(coverage(store.read("state")))
