@@ -73,10 +73,28 @@ def test_the_state_reader_scores_frames_with_the_task_reward(trained, store):
     assert isinstance(reward, StateImageReward)
     frames = (torch.from_numpy(ep["img"]).permute(0, 3, 1, 2).float() / 255.0)[None].requires_grad_(True)  # (1, T, 3, S, S)
     score = reward(frames)
-    read = predictor(frames[0, -1:].detach())
-    assert torch.allclose(score, ink(read[None]), atol=1e-5)  # the task's F1 on the state read from the last frame
+    read = predictor(frames[0].detach())
+    # the drawing's F1 is made from the whole path (the first frame's ink, then where the pen goes): every frame is read
+    assert ink.reads_path and torch.allclose(score, ink(read[None]), atol=1e-5)
     score.sum().backward()
-    assert frames.grad is not None and frames.grad[0, -1].abs().sum() > 0 and frames.grad[0, :-1].abs().sum() == 0
+    assert frames.grad is not None and all(frames.grad[0, t].abs().sum() > 0 for t in range(frames.shape[1]))
+
+
+def test_a_reward_of_the_last_state_reads_the_last_frame_alone(trained, store):
+    """Each frame read is a network pass: a final-step reward that does not read the path gets one frame per chunk."""
+    seen = []
+
+    class LastInk(torch.nn.Module):
+        def forward(self, states: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+            seen.append(states.shape[1])
+            return states[:, -1, 8:-1].sum(-1)
+
+    frames = EpisodeStore.open(store).episode(0, ["img"])["img"][None, :5]
+    frames = torch.from_numpy(frames).permute(0, 1, 4, 2, 3).float() / 255.0
+    reader = learned_image_reward(trained.last, LastInk(), task="draw")
+    reader(frames)
+    learned_image_reward(trained.last, LastInk(), config=RewardConfig(aggregate="discounted"), task="draw")(frames)
+    assert seen == [1, 5]
 
 
 def test_the_state_reader_is_judged_by_the_reward_of_the_recorded_states(trained, store):

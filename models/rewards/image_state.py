@@ -42,7 +42,9 @@ class StateImageReward(nn.Module):
         return self.predictor(frames.flatten(0, 1)).reshape(k, t, -1)
 
     def forward(self, frames: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
-        if self.config.aggregate == "final":  # only the last frame scores: read no other (each read is a network pass)
+        # Where only the last state scores, read no other frame (each read is a network pass); a state reward whose
+        # final score is made from the whole predicted path (``reads_path``: Triangle Drawing's ink) reads them all.
+        if self.config.aggregate == "final" and not getattr(self.reward, "reads_path", False):
             frames = frames[:, -1:]
         return self.reward(self.states(frames), goal)
 

@@ -6,7 +6,9 @@ never import ``gpc.models``; the name maps here to a factory of the task's layou
 against the goal) is built in; a task of your own can register another differentiable reward
 (batched futures ``(K, T, D)`` and optional goals ``(K, G)`` in, ``(K,)`` scores out, higher is better),
 or name its factory ``package.module:function``, imported and registered on first use: a task's reward
-then lives beside the task, which imports no ``gpc.models``.
+then lives beside the task, which imports no ``gpc.models``. A reward whose final score is computed from every
+predicted step, not the last alone, says so with a true ``reads_path`` attribute, so that the learned image reward
+reads a state from every predicted frame for it (``gpc.models.rewards.image_state``).
 """
 
 from __future__ import annotations

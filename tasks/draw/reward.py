@@ -46,6 +46,9 @@ class InkReward(nn.Module):
 
     along: torch.Tensor
     across: torch.Tensor
+    # Even the final score reads every step (the first's summary, then the pen's path): an image reward must read a
+    # state from every predicted frame, not the last alone (``gpc.models.rewards.state``).
+    reads_path = True
 
     def __init__(self, aggregate: str = "final", discount: float = 0.99) -> None:
         super().__init__()
