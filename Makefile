@@ -262,7 +262,7 @@ else
   $(error PROFILE=$(PROFILE): use smoke, cpu or paper)
 endif
 
-.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-pusht-table1 reproduce-baselines reproduce-baselines-vision reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision check-sim clean
+.PHONY: help venv test test-extended test-fast lint types bench reproduce reproduce-pusht reproduce-pusht-table1 reproduce-baselines reproduce-baselines-vision reproduce-vision reproduce-pusht-vision restore-vision keep-vision probe-opt-vision probe-rank-vision check-sim clean
 
 help:
 	@echo "make reproduce         collect data and run a task's state pipeline (TASK=pusht|swap|draw|stack, PROFILE=cpu|smoke|paper, EXPLORE=0, GOAL=random, WM_PLAN=phase2|onpolicy|ensemble)"
@@ -275,6 +275,7 @@ help:
 	@echo "make restore-vision    put a task's vision checkpoints kept in artifacts/TASK-PROFILE/ where their stages look (then go on)"
 	@echo "make keep-vision       export a task's finished vision stages (and an unfinished training's state) and their results into artifacts/TASK-PROFILE/"
 	@echo "make probe-opt-vision  GPC-OPT through the visual model on validation seeds, replayed in the simulator"
+	@echo "make probe-rank-vision how well GPC-RANK's visual model and learned reward order the proposals on validation seeds"
 	@echo "make test              lint, type-check and run the test suite (as CI does; make test-extended: the end-to-end checks it leaves out)"
 	@echo "make test-fast         lint and the test suite without the slow end-to-end checks (under 2 minutes)"
 	@echo "make bench             run the benchmarks and write their latest figures to docs/benchmarks.md"
@@ -690,6 +691,17 @@ $(VPROBE): $(VDONE)
 
 probe-opt-vision: $(VPROBE)
 	@cat $(VPROBE)
+
+# probe-rank-vision: how well GPC-RANK's scorer (the visual model and the learned reward) orders the image policy's
+# K=100 proposals at BC's decisions on validation seeds, each proposal replayed in the true simulator: the check a
+# vision recipe needs before its test seeds (Triangle Drawing's first recipe ranked at chance; docs/tasks.md).
+VRANK_PROBE := $(VRESULTS)/ranking-vrank-K100.md
+$(VRANK_PROBE): $(VDONE)
+	$(BIN)/gpc eval ranking $(VPOLICY_CKPT) --scorer rank=$(VPLAN_CKPT) --reward learned --reward-checkpoint $(REWARD_CKPT) \
+	  --precision $(VPRECISION) -K 100 $(VPROBE_ARGS) --out $@
+
+probe-rank-vision: $(VRANK_PROBE)
+	@cat $(VRANK_PROBE)
 
 clean:
 	rm -rf $(VENV) runs results .pytest_cache

@@ -221,6 +221,25 @@ def test_the_vision_tables_use_their_papers_seeds(tmp_path):
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
+def test_the_ranking_probe_judges_the_tables_scorer_on_validation_seeds(tmp_path):
+    """`make probe-rank-vision` probes the world model and reward the table's GPC-RANK plans with, on validation seeds."""
+    venv = Path(sys.executable).parent.parent
+
+    def commands(target: str) -> list[str]:
+        done = subprocess.run(["make", "-n", target, "TASK=draw", "PROFILE=cpu", f"VENV={venv}", f"RUN_DIR={tmp_path}"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-2000:]
+        return [line for line in done.stdout.replace("\\\n", " ").splitlines() if "gpc eval " in line]
+
+    probe = next(line for line in commands("probe-rank-vision") if "eval ranking" in line).split()
+    rank = next(line for line in commands("reproduce-vision") if "--planner rank -K 100 " in line).split()
+    for option in ("--reward-checkpoint", "--precision"):
+        assert probe[probe.index(option) + 1] == rank[rank.index(option) + 1]
+    assert probe[probe.index("--scorer") + 1] == "rank=" + rank[rank.index("--world-model") + 1]
+    assert probe[probe.index("-K") + 1] == "100" and probe[probe.index("--seeds") + 1].startswith("2000")
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_an_ensemble_plan_trains_its_members_and_plans_with_one_file(tmp_path):
     """WM_PLAN=ensemble: the on-policy model and one more per ENSEMBLE_SEEDS (each with its seed), joined by `gpc
     ensemble` with PESSIMISM; every planner's --world-model is that file, its results in their own folder."""
