@@ -182,17 +182,22 @@ def test_smoke_profile_runs_every_stage_and_resumes(tmp_path):
     assert no_goal.returncode != 0 and "GOAL=random: the vision pipeline has fixed goals only" in no_goal.stderr
 
 
+def dry_run(target: str, *options: str) -> list[str]:
+    """The commands ``make -n TARGET OPTIONS`` would run with this environment's gpc, one per line (continuations joined)."""
+    venv = Path(sys.executable).parent.parent
+    done = subprocess.run(["make", "-n", target, f"VENV={venv}", *options], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout.replace("\\\n", " ").splitlines()
+
+
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_another_planning_model_shares_bc_and_the_ceiling(tmp_path):
     """WM_PLAN=onpolicy plans into its own results folder; BC and the ceiling read no world model, so its table takes
     them from the default model's folder instead of evaluating them again (24 minutes of Cube & Sphere Swapping's)."""
-    venv = Path(sys.executable).parent.parent
-    base = ["make", "-n", "reproduce", "TASK=swap", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={tmp_path / 'runs'}"]
     evals = {}
     for plan in ("phase2", "onpolicy"):
-        done = subprocess.run(base + [f"WM_PLAN={plan}"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-        assert done.returncode == 0, done.stderr[-2000:]
-        lines = [line for line in done.stdout.splitlines() if "gpc eval " in line and "gpc eval world-model" not in line]
+        done = dry_run("reproduce", "TASK=swap", "PROFILE=smoke", f"RUN_DIR={tmp_path / 'runs'}", f"WM_PLAN={plan}")
+        lines = [line for line in done if "gpc eval " in line and "gpc eval world-model" not in line]
         evals[plan] = {line.split("--out ")[1].split()[0] for line in lines}
     assert {"results/swap-smoke/bc", "results/swap-smoke/gt-sim-K4"} <= evals["phase2"] & evals["onpolicy"]
     assert "results/swap-smoke-wm-onpolicy/rank-K4" in evals["onpolicy"] and "results/swap-smoke/rank-K4" in evals["phase2"]
@@ -203,15 +208,11 @@ def test_another_planning_model_shares_bc_and_the_ceiling(tmp_path):
 def test_the_vision_tables_use_their_papers_seeds(tmp_path):
     """Table III (Swapping, Drawing, Stacking) is scored on 50 seeds with its rows, Push-T's vision table (Table II) on
     100 with K=50 as well; SEEDS still rules."""
-    venv = Path(sys.executable).parent.parent
-
     def evals(task: str, *extra: str) -> dict[str, str]:  # each evaluation's folder -> its seeds
-        done = subprocess.run(["make", "-n", "reproduce-vision", f"TASK={task}", "PROFILE=cpu", f"VENV={venv}",
-                               f"RUN_DIR={tmp_path / task}", f"RESULTS={tmp_path / task / 'results'}", *extra],
-                              cwd=ROOT, capture_output=True, text=True, timeout=60)
-        assert done.returncode == 0, done.stderr[-2000:]
+        done = dry_run("reproduce-vision", f"TASK={task}", "PROFILE=cpu", f"RUN_DIR={tmp_path / task}",
+                       f"RESULTS={tmp_path / task / 'results'}", *extra)
         return {Path(line.split("--out ")[1].split()[0]).name: line.split("--seeds ")[1].split()[0]
-                for line in done.stdout.splitlines() if "gpc eval " in line and "--seeds" in line}
+                for line in done if "gpc eval " in line and "--seeds" in line}
 
     table3 = {"bc", "vrank-K100", "vopt-M25", "vrank-opt-10x25", "vgt-sim-K100"}  # Table III's rows and the ceiling
     for task in ("draw", "swap", "stack"):
@@ -223,13 +224,8 @@ def test_the_vision_tables_use_their_papers_seeds(tmp_path):
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_the_ranking_probe_judges_the_tables_scorer_on_validation_seeds(tmp_path):
     """`make probe-rank-vision` probes the world model and reward the table's GPC-RANK plans with, on validation seeds."""
-    venv = Path(sys.executable).parent.parent
-
     def commands(target: str) -> list[str]:
-        done = subprocess.run(["make", "-n", target, "TASK=draw", "PROFILE=cpu", f"VENV={venv}", f"RUN_DIR={tmp_path}"],
-                              cwd=ROOT, capture_output=True, text=True, timeout=60)
-        assert done.returncode == 0, done.stderr[-2000:]
-        return [line for line in done.stdout.replace("\\\n", " ").splitlines() if "gpc eval " in line]
+        return [line for line in dry_run(target, "TASK=draw", "PROFILE=cpu", f"RUN_DIR={tmp_path}") if "gpc eval " in line]
 
     probe = next(line for line in commands("probe-rank-vision") if "eval ranking" in line).split()
     rank = next(line for line in commands("reproduce-vision") if "--planner rank -K 100 " in line).split()
@@ -243,18 +239,15 @@ def test_the_ranking_probe_judges_the_tables_scorer_on_validation_seeds(tmp_path
 def test_an_ensemble_plan_trains_its_members_and_plans_with_one_file(tmp_path):
     """WM_PLAN=ensemble: the on-policy model and one more per ENSEMBLE_SEEDS (each with its seed), joined by `gpc
     ensemble` with PESSIMISM; every planner's --world-model is that file, its results in their own folder."""
-    venv = Path(sys.executable).parent.parent
     runs = tmp_path / "runs"
-    done = subprocess.run(["make", "-n", "reproduce", "TASK=swap", "PROFILE=smoke", f"VENV={venv}", f"RUN_DIR={runs}",
-                           "WM_PLAN=ensemble", "ENSEMBLE_SEEDS=3 4", "PESSIMISM=0.5"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=60)
-    assert done.returncode == 0, done.stderr[-2000:]
-    trains = [line for line in done.stdout.splitlines() if "gpc train world-model" in line and "--phase 2" in line]
+    lines = dry_run("reproduce", "TASK=swap", "PROFILE=smoke", f"RUN_DIR={runs}", "WM_PLAN=ensemble", "ENSEMBLE_SEEDS=3 4",
+                    "PESSIMISM=0.5")
+    trains = [line for line in lines if "gpc train world-model" in line and "--phase 2" in line]
     seeds = sorted(line.split("--seed ")[1].split()[0] for line in trains if "policy-episodes.zarr" in line)
     assert seeds == ["0", "3", "4"]  # the on-policy model and its two siblings, on the same data
     ensemble = f"{runs}/wm-onpolicy-ensemble-p0.5.ckpt"
-    joined = [line for line in done.stdout.splitlines() if "gpc ensemble" in line]
+    joined = [line for line in lines if "gpc ensemble" in line]
     assert len(joined) == 1 and "--pessimism 0.5" in joined[0] and joined[0].count("/checkpoints/last.ckpt") == 3
-    planners = [line for line in done.stdout.splitlines() if "gpc eval " in line and "--world-model" in line]
+    planners = [line for line in lines if "gpc eval " in line and "--world-model" in line]
     assert planners and all(f"--world-model {ensemble}" in line for line in planners if "gt-sim" not in line)
     assert all("results/swap-smoke-wm-ensemble/" in line for line in planners if "gt-sim" not in line)
