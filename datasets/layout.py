@@ -35,6 +35,10 @@ class StateLayout:
     # outline: at most 0.017 in the expert's data, 0.1 after one bad chunk), a span fitted to the data alone would
     # put the policy's inputs tens of units outside [-1, 1].
     spans: tuple[tuple[int, float, float], ...] = ()
+    # ``package.module:function`` taking ``(N, dim)`` torch states to the same states labelled as a picture tells them,
+    # where the state orders what a frame cannot (a drawing's corners: which one the seed drew first); the task's
+    # reward must not change under it. The image reward's reader learns these labels. "": states are their labels.
+    relabel: str = ""
 
     def __post_init__(self) -> None:
         if self.dim < 1:
@@ -45,6 +49,8 @@ class StateLayout:
         for i, lo, hi in self.spans:
             if not -math.inf < lo < hi < math.inf:
                 raise ValueError(f"span of state entry {i}: ({lo}, {hi}) must be finite with low below high")
+        if self.relabel and ":" not in self.relabel:
+            raise ValueError(f"relabel {self.relabel!r}: name a function as package.module:function")
         if self.agent_xy != tuple(range(len(self.agent_xy))):
             raise ValueError(f"agent_xy {self.agent_xy}: the agent's entries must lead the state vector")
 

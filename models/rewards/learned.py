@@ -38,8 +38,8 @@ from gpc.datasets.errors import DataError
 from gpc.datasets.layout import TaskLayout
 from gpc.datasets.normalizer import MinMaxNormalizer
 from gpc.datasets.windows import EpisodeArrays
-from gpc.models.networks.resnet import ResNet18Trunk
-from gpc.models.rewards.augment import random_blur, random_shift, resize
+from gpc.models.rewards.augment import random_blur, random_shift
+from gpc.models.rewards.readers import IMAGE_KEY, STATE_KEY, PosePredictor, StatePredictor
 from gpc.models.rewards.registration import PoseReward, RewardConfig, pose_errors
 from gpc.models.training.config import OptimConfig, Profile, RunConfig
 from gpc.models.training.config_io import PlainConfig
@@ -47,7 +47,6 @@ from gpc.models.training.module import TrainableModule
 
 KIND = "reward"
 OBS_TYPE = "image"
-IMAGE_KEY, STATE_KEY = "img", "state"
 PROFILES = ("cpu", "paper", "tiny")
 POOLS = ("flatten", "avg")
 
@@ -69,6 +68,10 @@ class RewardPredictorConfig(PlainConfig):
     frame_extent: float | None = None  # world units a frame spans (from the task); needed for label-consistent shifts
     state_reward: str = ""  # the task's own state reward (its name): the predictor reads the whole state, not poses
     state_dim: int = 0  # the state entries it reads then (all of them)
+    agent_keypoint: bool = False  # a state reader of a top-down frame reads the agent's (x, y) by a keypoint (readers)
+    agent_dims: tuple[int, ...] = ()  # those entries (the task's agent_xy; filled by with_task)
+    frame_origin: float = 0.0  # world coordinate at a frame's first pixel edge (from the task), for the keypoint
+    relabel: str = ""  # a state reader's labels: the task's StateLayout.relabel (filled by with_task)
     shift_px: float = 4.0  # training: uniform random translation up to this many input pixels (0: none)
     blur_prob: float = 0.5  # training: share of frames blurred
     blur_sigma: float = 1.0  # training: blur standard deviation drawn from U(0, blur_sigma) input pixels
@@ -98,6 +101,13 @@ class RewardPredictorConfig(PlainConfig):
         if self.state_reward and (self.state_dim < 1 or self.pose_dims or self.shift_px > 0):
             raise ValueError(f"state_reward {self.state_reward!r}: a state reader needs state_dim >= 1, no pose_dims and "
                              "shift_px 0 (a shifted frame changes state entries in task-specific ways)")
+        if self.relabel and not self.state_reward:
+            raise ValueError(f"relabel {self.relabel!r}: only a state reader relabels what it reads")
+        agent = self.agent_dims
+        if agent and (not self.state_reward or self.frame_extent is None or len(agent) != 2 or len(set(agent)) != 2
+                      or min(agent) < 0 or max(agent) >= self.state_dim):
+            raise ValueError(f"agent_dims {agent}: a state reader's agent is two distinct state entries (x, y) "
+                             "on a frame of known extent")
         if self.shift_px < 0 or self.blur_sigma < 0 or not 0.0 <= self.blur_prob <= 1.0:
             raise ValueError("shift_px and blur_sigma must be >= 0 and blur_prob in [0, 1]")
 
@@ -121,8 +131,11 @@ class RewardPredictorConfig(PlainConfig):
         if layout.frame is None:
             raise ValueError(f"the learned image reward reads frames; task {layout.name} renders none")
         if state_reward != "registration":
+            # a frame that names the agent's colours is top-down over its extent (a camera's is not)
+            agent = layout.state.agent_xy if self.agent_keypoint and layout.frame.agent_colours else ()
             return dataclasses.replace(self, task=layout.name, state_reward=state_reward, state_dim=layout.state.dim,
-                                       frame_extent=layout.frame.span, shift_px=0.0)
+                                       frame_extent=layout.frame.span, frame_origin=layout.frame.extent[0], shift_px=0.0,
+                                       agent_dims=agent, relabel=layout.state.relabel)
         several = len(layout.objects) > 1  # one object keeps the fields a single-object config always had
         return dataclasses.replace(
             self, task=layout.name, pose_dims=layout.pose_dims, goal=layout.goal, frame_extent=layout.frame.span,
@@ -163,97 +176,8 @@ def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
         config = dataclasses.replace(config, input_size=input_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
+    config = dataclasses.replace(config, agent_keypoint=True)  # used by a state reader only (see with_task)
     return Profile(config.with_task(layout, state_reward), batch, steps)
-
-
-class PosePredictor(nn.Module):
-    """Normaliser + ResNet18 + MLP: ``(N, 3, H, W)`` frames in [0, 1] -> ``(N, P)`` poses, each object's ``(x, y[, theta])``.
-
-    The normaliser holds the fixed ``img`` range (0..255) and the ``state`` range of the
-    training data (the labels' x, y are predicted in [-1, 1] of that range).
-    """
-
-    def __init__(self, config: RewardPredictorConfig, normalizer: MinMaxNormalizer | None = None) -> None:
-        super().__init__()
-        self.config = config
-        self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
-        self.trunk = ResNet18Trunk(3, config.resnet_width)
-        cells = config.input_size
-        for _ in range(5):  # stem conv, max-pool and three strided stages each halve the size, rounding up
-            cells = -(-cells // 2)
-        dims = (self.trunk.out_channels * (cells * cells if config.pool == "flatten" else 1),) + config.mlp_dims
-        layers: list[nn.Module] = []
-        for a, b in zip(dims[:-1], dims[1:]):
-            layers += [nn.Linear(a, b), nn.ReLU()]
-        self.sizes = config.sizes
-        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], self.outputs()))
-        starts = [sum(self.sizes[:i]) for i in range(len(self.sizes))]
-        self.xy_dims = [config.pose_dims[s + j] for s in starts for j in (0, 1)]  # every object's x, y entries
-        self._angles = [config.pose_dims[s + 2] for s, n in zip(starts, self.sizes) if n == 3]
-
-    def outputs(self) -> int:
-        """The head's outputs: each object's ``(x_n, y_n[, cos, sin])``."""
-        return sum(2 + 2 * (n == 3) for n in self.config.sizes)
-
-    def check_normalizer(self) -> None:
-        missing = [k for k in (IMAGE_KEY, STATE_KEY) if k not in self.normalizer.keys()]
-        if missing:
-            raise ValueError(f"the reward predictor's normaliser has no statistics for {', '.join(missing)}")
-
-    def prepare(self, frames: torch.Tensor) -> torch.Tensor:
-        """``(N, 3, H, W)`` in [0, 1] -> ``(N, 3, S, S)`` resized to ``input_size`` and normalised."""
-        if frames.dim() != 4 or frames.shape[1] != 3:
-            raise ValueError(f"frames: expected (N, 3, H, W), got {tuple(frames.shape)}")
-        x = resize(frames, self.config.input_size)
-        scale, offset = self.normalizer.scales[IMAGE_KEY], self.normalizer.offsets[IMAGE_KEY]
-        return x * (255.0 * scale.to(x.dtype))[:, None, None] + offset.to(x.dtype)[:, None, None]
-
-    def raw(self, x: torch.Tensor) -> torch.Tensor:
-        """Prepared ``(N, 3, S, S)`` -> ``(N, O)`` network outputs, each object's ``(x_n, y_n[, cos, sin])``."""
-        features = self.trunk(x)
-        features = features.flatten(1) if self.config.pool == "flatten" else features.mean(dim=(2, 3))
-        return self.head(features)
-
-    def targets(self, states: torch.Tensor) -> torch.Tensor:
-        """``(N, D)`` raw states -> ``(N, O)`` labels, each object's ``(x_n, y_n[, cos theta, sin theta])``."""
-        xy = states[:, self.xy_dims] * self.normalizer.scales[STATE_KEY][self.xy_dims] + self.normalizer.offsets[STATE_KEY][self.xy_dims]
-        parts, turns = [], iter(self._angles)
-        for i, n in enumerate(self.sizes):
-            parts.append(xy[:, 2 * i : 2 * i + 2])
-            if n == 3:
-                theta = states[:, next(turns)]
-                parts += [torch.cos(theta)[:, None], torch.sin(theta)[:, None]]
-        return torch.cat(parts, dim=1)
-
-    def to_pose(self, out: torch.Tensor) -> torch.Tensor:
-        """``(N, O)`` outputs -> ``(N, P)`` poses, each object's ``(x, y[, theta])`` in raw units (theta in (-pi, pi])."""
-        parts, col = [], 0
-        for i, n in enumerate(self.sizes):
-            xy_dims = self.xy_dims[2 * i : 2 * i + 2]
-            parts.append((out[:, col : col + 2] - self.normalizer.offsets[STATE_KEY][xy_dims]) / self.normalizer.scales[STATE_KEY][xy_dims])
-            if n == 3:
-                parts.append(torch.atan2(out[:, col + 3], out[:, col + 2])[:, None])
-            col += 2 + 2 * (n == 3)
-        return torch.cat(parts, dim=1)
-
-    def forward(self, frames: torch.Tensor) -> torch.Tensor:
-        """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, P)`` predicted poses, differentiable."""
-        return self.to_pose(self.raw(self.prepare(frames)))
-
-
-class StatePredictor(PosePredictor):
-    """``(N, 3, H, W)`` frames -> ``(N, D)`` whole states, each entry predicted in [-1, 1] of its training range: the
-    reader of a task scored by its own state reward (``config.state_reward``)."""
-
-    def outputs(self) -> int:
-        return self.config.state_dim
-
-    def targets(self, states: torch.Tensor) -> torch.Tensor:
-        return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]
-
-    def to_pose(self, out: torch.Tensor) -> torch.Tensor:
-        """``(N, D)`` outputs -> ``(N, D)`` states in raw units (an entry that never varied reads as its one value)."""
-        return (out - self.normalizer.offsets[STATE_KEY]) / self.normalizer.scales[STATE_KEY]
 
 
 class ImageReward(PoseReward):
@@ -380,17 +304,21 @@ class RewardPredictorModule(TrainableModule):
     def loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         frames, states = self._frames_states(batch)
         x, states = self._augment(self.predictor.prepare(frames), states)
-        loss = F.mse_loss(self.predictor.raw(x), self.predictor.targets(states))
-        return loss, {"loss": loss.detach()}
+        loss, parts = self.predictor.fit_loss(x, self.predictor.label(states))
+        return loss, {"loss": loss.detach(), **parts}
 
     def validation_loss(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The label loss on unaugmented frames, with the pose and registration-loss errors in px and degrees."""
         frames, states = self._frames_states(batch)
+        states = self.predictor.label(states)
         out = self.predictor.raw(self.predictor.prepare(frames))
         loss = F.mse_loss(out, self.predictor.targets(states))
         c = self.config
         if c.state_reward:  # a state reader: its entries' mean error in raw units (the reward's error: `gpc eval reward`)
-            return loss, {"state_abs_err": (self.predictor.to_pose(out) - states).abs().mean()}
+            read, logs = self.predictor.to_pose(out), {}
+            if c.agent_dims:  # and how far off it places the agent
+                logs["agent_err"] = (read - states)[:, list(c.agent_dims)].norm(dim=-1).mean()
+            return loss, {"state_abs_err": (read - states).abs().mean(), **logs}
         verts = [torch.tensor(v, device=out.device) for v in c.object_vertices]
         goal = None if c.goal is None else torch.tensor(c.goal, device=out.device)
         errors = pose_errors(self.predictor.to_pose(out), states[:, list(c.pose_dims)], verts, goal, c.sizes)

@@ -21,7 +21,8 @@ from torch import nn
 from gpc.datasets.errors import DataError
 from gpc.datasets.sequence import recorded_held_out
 from gpc.datasets.store import EpisodeStore
-from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule, resize
+from gpc.models.rewards.augment import resize
+from gpc.models.rewards.learned import IMAGE_KEY, STATE_KEY, RewardPredictorModule
 from gpc.models.rewards.registration import pose_errors
 from gpc.models.stats import spearman
 
@@ -142,7 +143,7 @@ def evaluate_state_reader(
         read = module.predictor(x)
         parts["pred"].append(reward(read[:, None]).double().cpu().numpy())
         parts["true"].append(reward(states[:, None]).double().cpu().numpy())
-        parts["state_err"].append((read - states).abs().double().cpu().numpy())
+        parts["state_err"].append((read - module.predictor.label(states)).abs().double().cpu().numpy())
     pred, true, err = (np.concatenate(parts[k]) for k in ("pred", "true", "state_err"))
     rho = spearman(true, pred)
     return {"split": split, "datasets": [str(p) for p in datasets], "episodes": len(chosen), "stride": stride,

@@ -40,6 +40,20 @@ def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> 
     return (gap * gap).sum(-1).clamp(min=1e-9).sqrt()
 
 
+def canonical(states: torch.Tensor) -> torch.Tensor:
+    """``(N, D)`` states with the corners (and their edges' bins) turned so that corner 0 is the one at the smallest
+    angle about the triangle's centre: the order a picture tells (the seed's first corner is the pen's start, which
+    the picture does not show). The reward is the same: each bin keeps its edge, the edges their cyclic order."""
+    v = states[:, 2:SUMMARY_START].reshape(-1, 3, 2)
+    centred = v - v.mean(dim=1, keepdim=True)
+    first = torch.atan2(centred[..., 1], centred[..., 0]).argmin(dim=1)
+    order = (first[:, None] + torch.arange(3, device=states.device)) % 3
+    v = torch.gather(v, 1, order[..., None].expand(-1, -1, 2))
+    end = SUMMARY_START + 3 * N_BINS
+    bins = torch.gather(states[:, SUMMARY_START:end].reshape(-1, 3, N_BINS), 1, order[..., None].expand(-1, -1, N_BINS))
+    return torch.cat([states[:, :2], v.reshape(-1, 6), bins.reshape(-1, 3 * N_BINS), states[:, end:]], dim=1)
+
+
 class InkReward(nn.Module):
     """``(K, T, D)`` predicted states -> ``(K,)`` scores: the last step's F1 (``aggregate="final"``) or the
     discounted sum of every step's (``"discounted"``); the goal is unused (the triangle is in the state)."""

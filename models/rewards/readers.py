@@ -1,0 +1,188 @@
+"""The networks that read a frame: each object's pose (``PosePredictor``) or a whole state (``StatePredictor``).
+
+Both are a normaliser, a ResNet18 trunk and an MLP head (``gpc.models.rewards.learned`` trains them). A state
+reader of a top-down frame reads the agent's position by a soft-argmax over a map of the trunk's first stage
+(stride 4, ``config.agent_dims``) instead: the agent is a small marker (the drawing's pen, a ring 26 px wide on a
+512 px canvas) which the trunk's last map (2 x 2 cells at 64 px) keeps only as a code the head must decode scene by
+scene (the head alone read the pen 108 px off on held-out drawings). The map is trained to peak where the agent is
+(a heatmap target, as keypoint detectors are), and the frame's extent turns its expected cell into world units.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.models.networks.resnet import ResNet18Trunk
+from gpc.models.rewards.augment import resize
+
+if TYPE_CHECKING:
+    from gpc.models.rewards.learned import RewardPredictorConfig
+
+IMAGE_KEY, STATE_KEY = "img", "state"
+AGENT_WEIGHT = 0.1  # the keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
+
+
+def _function(name: str) -> Callable[[torch.Tensor], torch.Tensor]:
+    module, _, attr = name.partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"relabel {name!r}: cannot load it ({exc})") from None
+
+
+class PosePredictor(nn.Module):
+    """Normaliser + ResNet18 + MLP: ``(N, 3, H, W)`` frames in [0, 1] -> ``(N, P)`` poses, each object's ``(x, y[, theta])``.
+
+    The normaliser holds the fixed ``img`` range (0..255) and the ``state`` range of the
+    training data (the labels' x, y are predicted in [-1, 1] of that range).
+    """
+
+    def __init__(self, config: RewardPredictorConfig, normalizer: MinMaxNormalizer | None = None) -> None:
+        super().__init__()
+        self.config = config
+        self.normalizer = normalizer if normalizer is not None else MinMaxNormalizer()
+        self.trunk = ResNet18Trunk(3, config.resnet_width)
+        cells = config.input_size
+        for _ in range(5):  # stem conv, max-pool and three strided stages each halve the size, rounding up
+            cells = -(-cells // 2)
+        dims = (self.trunk.out_channels * (cells * cells if config.pool == "flatten" else 1),) + config.mlp_dims
+        layers: list[nn.Module] = []
+        for a, b in zip(dims[:-1], dims[1:]):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        self.sizes = config.sizes
+        self.head = nn.Sequential(*layers, nn.Linear(dims[-1], self.outputs()))
+        starts = [sum(self.sizes[:i]) for i in range(len(self.sizes))]
+        self.xy_dims = [config.pose_dims[s + j] for s in starts for j in (0, 1)]  # every object's x, y entries
+        self._angles = [config.pose_dims[s + 2] for s, n in zip(starts, self.sizes) if n == 3]
+
+    def outputs(self) -> int:
+        """The head's outputs: each object's ``(x_n, y_n[, cos, sin])``."""
+        return sum(2 + 2 * (n == 3) for n in self.config.sizes)
+
+    def check_normalizer(self) -> None:
+        missing = [k for k in (IMAGE_KEY, STATE_KEY) if k not in self.normalizer.keys()]
+        if missing:
+            raise ValueError(f"the reward predictor's normaliser has no statistics for {', '.join(missing)}")
+
+    def prepare(self, frames: torch.Tensor) -> torch.Tensor:
+        """``(N, 3, H, W)`` in [0, 1] -> ``(N, 3, S, S)`` resized to ``input_size`` and normalised."""
+        if frames.dim() != 4 or frames.shape[1] != 3:
+            raise ValueError(f"frames: expected (N, 3, H, W), got {tuple(frames.shape)}")
+        x = resize(frames, self.config.input_size)
+        scale, offset = self.normalizer.scales[IMAGE_KEY], self.normalizer.offsets[IMAGE_KEY]
+        return x * (255.0 * scale.to(x.dtype))[:, None, None] + offset.to(x.dtype)[:, None, None]
+
+    def raw(self, x: torch.Tensor) -> torch.Tensor:
+        """Prepared ``(N, 3, S, S)`` -> ``(N, O)`` network outputs, each object's ``(x_n, y_n[, cos, sin])``."""
+        return self.head(self.pool(self.trunk(x)))
+
+    def pool(self, features: torch.Tensor) -> torch.Tensor:
+        """The trunk's last map -> the head's input."""
+        return features.flatten(1) if self.config.pool == "flatten" else features.mean(dim=(2, 3))
+
+    def targets(self, states: torch.Tensor) -> torch.Tensor:
+        """``(N, D)`` raw states -> ``(N, O)`` labels, each object's ``(x_n, y_n[, cos theta, sin theta])``."""
+        xy = states[:, self.xy_dims] * self.normalizer.scales[STATE_KEY][self.xy_dims] + self.normalizer.offsets[STATE_KEY][self.xy_dims]
+        parts, turns = [], iter(self._angles)
+        for i, n in enumerate(self.sizes):
+            parts.append(xy[:, 2 * i : 2 * i + 2])
+            if n == 3:
+                theta = states[:, next(turns)]
+                parts += [torch.cos(theta)[:, None], torch.sin(theta)[:, None]]
+        return torch.cat(parts, dim=1)
+
+    def to_pose(self, out: torch.Tensor) -> torch.Tensor:
+        """``(N, O)`` outputs -> ``(N, P)`` poses, each object's ``(x, y[, theta])`` in raw units (theta in (-pi, pi])."""
+        parts, col = [], 0
+        for i, n in enumerate(self.sizes):
+            xy_dims = self.xy_dims[2 * i : 2 * i + 2]
+            parts.append((out[:, col : col + 2] - self.normalizer.offsets[STATE_KEY][xy_dims]) / self.normalizer.scales[STATE_KEY][xy_dims])
+            if n == 3:
+                parts.append(torch.atan2(out[:, col + 3], out[:, col + 2])[:, None])
+            col += 2 + 2 * (n == 3)
+        return torch.cat(parts, dim=1)
+
+    def label(self, states: torch.Tensor) -> torch.Tensor:
+        """``(N, D)`` recorded states -> the states this reader is trained to read (here: themselves)."""
+        return states
+
+    def fit_loss(self, x: torch.Tensor, states: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Training loss on prepared frames and their labels' states, with any terms worth logging."""
+        return F.mse_loss(self.raw(x), self.targets(states)), {}
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """``(N, 3, H, W)`` frames in [0, 1] (any size) -> ``(N, P)`` predicted poses, differentiable."""
+        return self.to_pose(self.raw(self.prepare(frames)))
+
+
+class StatePredictor(PosePredictor):
+    """``(N, 3, H, W)`` frames -> ``(N, D)`` whole states, each entry predicted in [-1, 1] of its training range: the
+    reader of a task scored by its own state reward (``config.state_reward``); the agent's entries
+    (``config.agent_dims``), where given, by a keypoint over the first stage's map."""
+
+    agent_index: torch.Tensor
+
+    def __init__(self, config: RewardPredictorConfig, normalizer: MinMaxNormalizer | None = None) -> None:
+        super().__init__(config, normalizer)
+        self.register_buffer("agent_index", torch.tensor(config.agent_dims, dtype=torch.long), persistent=False)
+        if config.agent_dims:
+            self.locate = nn.Conv2d(config.resnet_width, 1, 1)  # the first stage keeps the stem's width
+        self.relabel = _function(config.relabel) if config.relabel else None
+
+    def label(self, states: torch.Tensor) -> torch.Tensor:
+        """The task's labels of what a frame shows (``StateLayout.relabel``; its reward is the same on them)."""
+        return states if self.relabel is None else self.relabel(states)
+
+    def outputs(self) -> int:
+        return self.config.state_dim
+
+    def raw(self, x: torch.Tensor) -> torch.Tensor:
+        return self.read(x)[0]
+
+    def read(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Prepared frames -> ``(N, D)`` outputs and, with a keypoint, its map's logits ``(N, h, w)``."""
+        if not self.config.agent_dims:
+            return super().raw(x), None
+        early = self.trunk.stages[0](self.trunk.stem(x))
+        out = self.head(self.pool(self.trunk.stages[1:](early)))
+        logits = self.locate(early)[:, 0]
+        where = (torch.softmax(logits.flatten(1), dim=-1) @ self._centres(logits)).flip(-1)  # (row, col) -> (x, y)
+        xy = where * self.config.frame_extent + self.config.frame_origin  # type: ignore[operator]
+        dims = self.agent_index
+        return out.index_copy(1, dims, xy * self.normalizer.scales[STATE_KEY][dims] + self.normalizer.offsets[STATE_KEY][dims]), logits
+
+    @staticmethod
+    def _centres(logits: torch.Tensor) -> torch.Tensor:
+        """``(h * w, 2)`` (row, column) of each cell's centre, as shares of the frame."""
+        h, w = logits.shape[-2:]
+        rows = (torch.arange(h, device=logits.device, dtype=logits.dtype) + 0.5) / h
+        cols = (torch.arange(w, device=logits.device, dtype=logits.dtype) + 0.5) / w
+        return torch.cartesian_prod(rows, cols)
+
+    def fit_loss(self, x: torch.Tensor, states: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The label loss, plus, with a keypoint, a cross-entropy pulling its map onto a blob (one cell wide) where the
+        agent is: squared error alone lets the map settle on any fixed cell (a border's) and answer the mean."""
+        out, logits = self.read(x)
+        loss = F.mse_loss(out, self.targets(states))
+        if logits is None:
+            return loss, {}
+        where = (states[:, self.agent_index].flip(-1) - self.config.frame_origin) / self.config.frame_extent  # type: ignore[operator]
+        size = torch.tensor(logits.shape[-2:], device=x.device, dtype=x.dtype)
+        gap = ((self._centres(logits)[None] - where[:, None]) * size).square().sum(-1)  # (N, h * w), in cells squared
+        target = torch.softmax(-0.5 * gap, dim=-1)
+        blob = -(target * torch.log_softmax(logits.flatten(1), dim=-1)).sum(-1).mean()
+        return loss + AGENT_WEIGHT * blob, {"agent_ce": blob.detach()}
+
+    def targets(self, states: torch.Tensor) -> torch.Tensor:
+        return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]
+
+    def to_pose(self, out: torch.Tensor) -> torch.Tensor:
+        """``(N, D)`` outputs -> ``(N, D)`` states in raw units (an entry that never varied reads as its one value)."""
+        return (out - self.normalizer.offsets[STATE_KEY]) / self.normalizer.scales[STATE_KEY]
