@@ -35,15 +35,21 @@ class StateLayout:
     # outline: at most 0.017 in the expert's data, 0.1 after one bad chunk), a span fitted to the data alone would
     # put the policy's inputs tens of units outside [-1, 1].
     spans: tuple[tuple[int, float, float], ...] = ()
-    # ``package.module:function`` taking ``(N, dim)`` torch states to the same states labelled as a picture tells them,
-    # where the state orders what a frame cannot (a drawing's corners: which one the seed drew first); the task's
-    # reward must not change under it. The image reward's reader learns these labels. "": states are their labels.
+    # ``package.module:function`` taking ``(N, dim)`` torch states to the labellings a picture cannot tell apart
+    # (``(N, E, dim)``; or one, ``(N, dim)``), where the state orders what a frame cannot show (a drawing's corners:
+    # which one the seed drew first); the task's reward must score them alike. An image reader learns, of each
+    # frame's, the one nearest what it reads. "": states are their labels.
     relabel: str = ""
+    # (x, y) entry pairs of fixed points a top-down frame shows (a drawing's corners), in the labels' order: an image
+    # reader finds them on a map
+    points: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.dim < 1:
             raise ValueError(f"state dim {self.dim}: must be at least 1")
-        for name in ("agent_xy", "angle_dims", "action_targets"):
+        if len(self.points) % 2:
+            raise ValueError(f"points {self.points}: need (x, y) pairs of entries")
+        for name in ("agent_xy", "angle_dims", "action_targets", "points"):
             _distinct_in_range(name, getattr(self, name), self.dim)
         _distinct_in_range("spans", tuple(int(i) for i, _, _ in self.spans), self.dim)
         for i, lo, hi in self.spans:

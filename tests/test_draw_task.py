@@ -92,11 +92,13 @@ def test_the_planning_reward_reads_the_ink_from_the_pens_path():
     assert per_step[0, -1].item() == pytest.approx(f1_along[-1], abs=0.01) and per_step[0, 0] < per_step[0, -1] - 0.05
 
 
-def test_a_reader_learns_the_corners_in_the_order_a_picture_tells_and_the_reward_is_the_same():
+def test_a_reader_is_told_every_order_of_the_corners_and_the_reward_is_the_same_on_each():
     """The seed draws which corner comes first (the pen starts there), a frame shows no such order: the task's
-    relabelling puts the corner at the smallest angle about the centre first (its edges' ink with it), so every
-    cyclic order of one scene has one label, and the reward of a path scores the same on either."""
+    relabelling gives a reader the three cyclic orders (their edges' ink with them) to learn the nearest of, the same
+    three whichever the seed drew, and the reward of a path scores each alike. The canonical order (the corner at the
+    smallest angle about the centre first), tried before, is one of them."""
     from gpc.models.rewards.readers import _function
+    from gpc.tasks.draw.reward import canonical
 
     task = get_task("draw")
     relabel = _function(task.layout.state.relabel)
@@ -104,14 +106,16 @@ def test_a_reader_learns_the_corners_in_the_order_a_picture_tells_and_the_reward
     corners, bins = states[:, 2:8].reshape(-1, 3, 2), states[:, 8:32].reshape(-1, 3, 8)
     turned = [torch.cat([states[:, :2], corners.roll(r, 1).flatten(1), bins.roll(r, 1).flatten(1), states[:, 32:]], 1)
               for r in range(3)]
-    labels = [relabel(t) for t in turned]
-    assert not torch.equal(turned[1], turned[0]) and all(torch.equal(lab, labels[0]) for lab in labels)
-    first = labels[0][0, 2:8].reshape(3, 2)
-    angles = torch.atan2(*(first - first.mean(0)).flip(1).T)
-    assert angles.argmin() == 0
+    options = relabel(states)
+    assert options.shape == (len(states), 3, 33) and torch.equal(options[:, 0], states)
+    for t in turned:  # the same three labellings, whichever corner the seed drew first
+        assert all(any(torch.equal(o, p) for p in relabel(t).unbind(1)) for o in options.unbind(1))
+        assert torch.equal(canonical(t), canonical(states))
+    assert not torch.equal(turned[1], turned[0])
+    first = canonical(states)[0, 2:8].reshape(3, 2)
+    assert torch.atan2(*(first - first.mean(0)).flip(1).T).argmin() == 0
     reward = build_reward(RewardSpec(), task)
-    torch.testing.assert_close(reward(torch.stack(turned)), reward(torch.stack(labels)))
-    torch.testing.assert_close(reward(torch.stack(turned)), reward(states[None]).expand(3))
+    torch.testing.assert_close(reward(options.transpose(0, 1)), reward(states[None]).expand(3))
 
 
 def test_the_ceiling_replays_the_true_canvas():

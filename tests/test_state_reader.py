@@ -23,6 +23,7 @@ from gpc.models.world_models.eval_visual import visual_markdown_table
 from gpc.models.world_models.regions import RegionReadout
 from gpc.tasks import get_task
 from gpc.tasks.draw import geometry, render
+from gpc.tasks.draw.reward import rotations
 
 DRAW, PUSHT = get_task("draw"), get_task("pusht")
 
@@ -59,10 +60,11 @@ def test_a_task_scored_by_its_own_reward_gets_a_state_reader_and_push_t_keeps_it
     with pytest.raises(ValueError, match="state_dim >= 1"):
         RewardPredictorConfig(task="draw", state_reward=DRAW.state_reward)
     assert draw.agent_dims == DRAW.layout.state.agent_xy == (0, 1) and pusht.agent_dims == ()
+    assert draw.point_dims == DRAW.layout.state.points == tuple(range(2, 8))  # the corners
     with pytest.raises(ValueError, match="agent_dims"):
         dataclasses.replace(draw, agent_dims=(0, 40))
     # a checkpoint's config from before the keypoint reads its agent with the head, as it was trained
-    old = {k: v for k, v in dataclasses.asdict(draw).items() if k not in ("agent_keypoint", "agent_dims")}
+    old = {k: v for k, v in dataclasses.asdict(draw).items() if k not in ("keypoints", "agent_dims", "point_dims")}
     assert RewardPredictorConfig.from_dict(old).agent_dims == ()
 
 
@@ -75,7 +77,7 @@ def test_the_agent_is_read_where_the_frame_shows_it_by_the_keypoint_not_the_head
     x = torch.tensor(np.stack(frames)).permute(0, 3, 1, 2).float() / 255.0
     config = reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config
     for agent_dims in ((0, 1), ()):
-        reader = StatePredictor(dataclasses.replace(config, agent_dims=agent_dims)).eval()
+        reader = StatePredictor(dataclasses.replace(config, agent_dims=agent_dims, point_dims=())).eval()
         reader.normalizer.scales["img"], reader.normalizer.offsets["img"] = torch.full((3,), 2 / 255), -torch.ones(3)
         reader.normalizer.scales["state"], reader.normalizer.offsets["state"] = torch.ones(33), torch.zeros(33)
         torch.nn.init.zeros_(reader.head[-1].weight)
@@ -90,7 +92,7 @@ def test_the_keypoint_map_is_trained_toward_where_it_reads_the_agent():
     """The map's target and its read-out share one geometry (x along columns, y along rows, over the frame's extent):
     a map shaped like the target reads the recorded pen back, and the cross-entropy is lowest on it."""
     config = reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config
-    reader = StatePredictor(config)
+    reader = StatePredictor(dataclasses.replace(config, point_dims=()))
     reader.normalizer.scales["state"], reader.normalizer.offsets["state"] = torch.ones(33), torch.zeros(33)
     states = torch.zeros(3, 33)
     states[:, :2] = torch.tensor([[150.0, 300.0], [250.0, 190.0], [370.0, 330.0]])  # away from the borders
@@ -108,11 +110,37 @@ def test_the_keypoint_map_is_trained_toward_where_it_reads_the_agent():
             return (-0.5 * gap / (512 / cells) ** 2).reshape(-1, 1, cells, cells)
 
     reader.locate = Peaked(states[:, :2])
-    read, _ = reader.read(x)
+    read = reader.read(x)[0]
     torch.testing.assert_close(read[:, :2], states[:, :2], atol=8.0, rtol=0)
     right = reader.fit_loss(x, states)[1]["agent_ce"]
     reader.locate = Peaked(states[:, :2].flip(-1))  # rows and columns swapped
     assert reader.fit_loss(x, states)[1]["agent_ce"] > right + 1.0
+
+
+def test_the_corners_are_the_heads_readings_moved_onto_the_maps_nearest_peaks():
+    """A head that reads each corner 40-60 px off, a map peaked at all three: each reading lands on its own corner."""
+    config = dataclasses.replace(reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config, input_size=64)
+    reader = StatePredictor(config)
+    reader.normalizer.scales["state"], reader.normalizer.offsets["state"] = torch.ones(33), torch.zeros(33)
+    corners = torch.tensor([[100.0, 100.0], [400.0, 120.0], [250.0, 420.0]])
+    state = torch.zeros(33)
+    state[2:8] = corners.flatten()
+    off = state.clone()
+    off[2:8] += torch.tensor([40.0, -30.0, -35.0, 45.0, 30.0, 30.0])
+    grid = reader._grid(torch.zeros(1, 1, 16, 16))
+
+    class Peaks(torch.nn.Module):  # channel 0 the agent's (unused here), channel 1 the corners', each a cell wide
+        def forward(self, early: torch.Tensor) -> torch.Tensor:
+            gap = (grid - corners[:, None]).square().sum(-1).min(0).values / 32.0**2
+            return torch.stack([torch.zeros_like(gap), -0.5 * gap]).reshape(1, 2, 16, 16).expand(len(early), -1, -1, -1)
+
+    reader.locate = Peaks()
+    torch.nn.init.zeros_(reader.head[-1].weight)
+    with torch.no_grad():
+        reader.head[-1].bias.copy_(off)
+        out, _, head = reader.read(torch.zeros(1, 3, 64, 64))
+    torch.testing.assert_close(head[0, 2:8], off[2:8])
+    assert (out[0, 2:8].reshape(3, 2) - corners).norm(dim=-1).max() < 12.0  # from 50-58 px off
 
 
 def test_the_state_reader_scores_frames_with_the_task_reward(trained, store):
@@ -167,9 +195,15 @@ def test_the_state_reader_is_judged_by_the_reward_of_the_recorded_states(trained
         read = module.predictor(torch.from_numpy(frames).permute(0, 3, 1, 2).float() / 255.0)
         pred = ink(read[:, None]).double().numpy()
     assert report["reward_mae"] == pytest.approx(np.abs(pred - truth).mean(), abs=1e-5)
-    # each entry's error against what the frame tells (corners in the picture's order), not the seed's order
-    labels = module.predictor.label(torch.from_numpy(states).float()).double().numpy()
-    assert not np.allclose(labels, states)
+    # each entry's error against what the frame tells (the corners in the cyclic order nearest the reading)
+    recorded = torch.from_numpy(states).float()
+    labels = module.predictor.label(recorded, read)
+    assert all(any(torch.equal(label, o) for o in options) for label, options in zip(labels, rotations(recorded)))
+    gap = [(module.predictor.targets(s) - module.predictor.targets(read)).square().sum(-1) for s in (labels, recorded)]
+    assert (gap[0] <= gap[1]).all()
+    turned = rotations(recorded)[:, 1]  # a reading near another order of the corners is judged against that order
+    assert torch.equal(module.predictor.label(recorded, turned), turned)
+    labels = labels.double().numpy()
     np.testing.assert_allclose(report["state_abs_err"], np.abs(read.double().numpy() - labels).mean(axis=0), atol=1e-5)
     assert f"| draw.zarr | all | 4 | {len(truth)} |" in state_reader_report([report])
 

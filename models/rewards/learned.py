@@ -68,8 +68,9 @@ class RewardPredictorConfig(PlainConfig):
     frame_extent: float | None = None  # world units a frame spans (from the task); needed for label-consistent shifts
     state_reward: str = ""  # the task's own state reward (its name): the predictor reads the whole state, not poses
     state_dim: int = 0  # the state entries it reads then (all of them)
-    agent_keypoint: bool = False  # a state reader of a top-down frame reads the agent's (x, y) by a keypoint (readers)
-    agent_dims: tuple[int, ...] = ()  # those entries (the task's agent_xy; filled by with_task)
+    keypoints: bool = False  # a state reader of a top-down frame reads the agent and the task's points on maps (readers)
+    agent_dims: tuple[int, ...] = ()  # the agent's (x, y) entries then (the task's agent_xy; filled by with_task)
+    point_dims: tuple[int, ...] = ()  # the points' (x, y) entry pairs then (the task's StateLayout.points)
     frame_origin: float = 0.0  # world coordinate at a frame's first pixel edge (from the task), for the keypoint
     relabel: str = ""  # a state reader's labels: the task's StateLayout.relabel (filled by with_task)
     shift_px: float = 4.0  # training: uniform random translation up to this many input pixels (0: none)
@@ -108,6 +109,11 @@ class RewardPredictorConfig(PlainConfig):
                       or min(agent) < 0 or max(agent) >= self.state_dim):
             raise ValueError(f"agent_dims {agent}: a state reader's agent is two distinct state entries (x, y) "
                              "on a frame of known extent")
+        points = self.point_dims
+        if points and (not self.state_reward or self.frame_extent is None or len(points) % 2 or len(set(points)) != len(points)
+                       or min(points) < 0 or max(points) >= self.state_dim or set(points) & set(agent)):
+            raise ValueError(f"point_dims {points}: a state reader's points are (x, y) pairs of distinct state entries, not "
+                             "the agent's, on a frame of known extent")
         if self.shift_px < 0 or self.blur_sigma < 0 or not 0.0 <= self.blur_prob <= 1.0:
             raise ValueError("shift_px and blur_sigma must be >= 0 and blur_prob in [0, 1]")
 
@@ -132,10 +138,11 @@ class RewardPredictorConfig(PlainConfig):
             raise ValueError(f"the learned image reward reads frames; task {layout.name} renders none")
         if state_reward != "registration":
             # a frame that names the agent's colours is top-down over its extent (a camera's is not)
-            agent = layout.state.agent_xy if self.agent_keypoint and layout.frame.agent_colours else ()
+            top_down = self.keypoints and bool(layout.frame.agent_colours)
+            agent, points = (layout.state.agent_xy, layout.state.points) if top_down else ((), ())
             return dataclasses.replace(self, task=layout.name, state_reward=state_reward, state_dim=layout.state.dim,
                                        frame_extent=layout.frame.span, frame_origin=layout.frame.extent[0], shift_px=0.0,
-                                       agent_dims=agent, relabel=layout.state.relabel)
+                                       agent_dims=agent, point_dims=points, relabel=layout.state.relabel)
         several = len(layout.objects) > 1  # one object keeps the fields a single-object config always had
         return dataclasses.replace(
             self, task=layout.name, pose_dims=layout.pose_dims, goal=layout.goal, frame_extent=layout.frame.span,
@@ -176,7 +183,7 @@ def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
         config = dataclasses.replace(config, input_size=input_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
-    config = dataclasses.replace(config, agent_keypoint=True)  # used by a state reader only (see with_task)
+    config = dataclasses.replace(config, keypoints=True)  # used by a state reader only (see with_task)
     return Profile(config.with_task(layout, state_reward), batch, steps)
 
 
@@ -304,20 +311,22 @@ class RewardPredictorModule(TrainableModule):
     def loss(self, batch: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         frames, states = self._frames_states(batch)
         x, states = self._augment(self.predictor.prepare(frames), states)
-        loss, parts = self.predictor.fit_loss(x, self.predictor.label(states))
+        loss, parts = self.predictor.fit_loss(x, states)
         return loss, {"loss": loss.detach(), **parts}
 
     def validation_loss(self, batch: Mapping[str, torch.Tensor], batch_idx: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The label loss on unaugmented frames, with the pose and registration-loss errors in px and degrees."""
         frames, states = self._frames_states(batch)
-        states = self.predictor.label(states)
         out = self.predictor.raw(self.predictor.prepare(frames))
+        states = self.predictor.label(states, self.predictor.to_pose(out))
         loss = F.mse_loss(out, self.predictor.targets(states))
         c = self.config
         if c.state_reward:  # a state reader: its entries' mean error in raw units (the reward's error: `gpc eval reward`)
             read, logs = self.predictor.to_pose(out), {}
-            if c.agent_dims:  # and how far off it places the agent
+            if c.agent_dims:  # and how far off it places the agent and the points
                 logs["agent_err"] = (read - states)[:, list(c.agent_dims)].norm(dim=-1).mean()
+            if c.point_dims:
+                logs["points_err"] = (read - states)[:, list(c.point_dims)].reshape(len(read), -1, 2).norm(dim=-1).mean()
             return loss, {"state_abs_err": (read - states).abs().mean(), **logs}
         verts = [torch.tensor(v, device=out.device) for v in c.object_vertices]
         goal = None if c.goal is None else torch.tensor(c.goal, device=out.device)

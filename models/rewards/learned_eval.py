@@ -143,7 +143,7 @@ def evaluate_state_reader(
         read = module.predictor(x)
         parts["pred"].append(reward(read[:, None]).double().cpu().numpy())
         parts["true"].append(reward(states[:, None]).double().cpu().numpy())
-        parts["state_err"].append((read - module.predictor.label(states)).abs().double().cpu().numpy())
+        parts["state_err"].append((read - module.predictor.label(states, read)).abs().double().cpu().numpy())
     pred, true, err = (np.concatenate(parts[k]) for k in ("pred", "true", "state_err"))
     rho = spearman(true, pred)
     return {"split": split, "datasets": [str(p) for p in datasets], "episodes": len(chosen), "stride": stride,

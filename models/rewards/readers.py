@@ -26,7 +26,8 @@ if TYPE_CHECKING:
     from gpc.models.rewards.learned import RewardPredictorConfig
 
 IMAGE_KEY, STATE_KEY = "img", "state"
-AGENT_WEIGHT = 0.1  # the keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
+AGENT_WEIGHT = 0.1  # each keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
+POINT_WINDOW = 2.0  # cells: how far from the head's reading a point's map is read (corners lie 5 or more apart)
 
 
 def _function(name: str) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -109,12 +110,12 @@ class PosePredictor(nn.Module):
             col += 2 + 2 * (n == 3)
         return torch.cat(parts, dim=1)
 
-    def label(self, states: torch.Tensor) -> torch.Tensor:
+    def label(self, states: torch.Tensor, read: torch.Tensor | None = None) -> torch.Tensor:
         """``(N, D)`` recorded states -> the states this reader is trained to read (here: themselves)."""
         return states
 
     def fit_loss(self, x: torch.Tensor, states: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Training loss on prepared frames and their labels' states, with any terms worth logging."""
+        """Training loss on prepared frames and their recorded states, with any terms worth logging."""
         return F.mse_loss(self.raw(x), self.targets(states)), {}
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
@@ -124,21 +125,34 @@ class PosePredictor(nn.Module):
 
 class StatePredictor(PosePredictor):
     """``(N, 3, H, W)`` frames -> ``(N, D)`` whole states, each entry predicted in [-1, 1] of its training range: the
-    reader of a task scored by its own state reward (``config.state_reward``); the agent's entries
-    (``config.agent_dims``), where given, by a keypoint over the first stage's map."""
+    reader of a task scored by its own state reward (``config.state_reward``). Where given, the agent's entries
+    (``config.agent_dims``) are read on a keypoint map and the points' (``config.point_dims``: a drawing's corners)
+    are the head's readings moved to the nearest peaks of a second map (within ``POINT_WINDOW`` cells)."""
 
     agent_index: torch.Tensor
+    point_index: torch.Tensor
 
     def __init__(self, config: RewardPredictorConfig, normalizer: MinMaxNormalizer | None = None) -> None:
         super().__init__(config, normalizer)
         self.register_buffer("agent_index", torch.tensor(config.agent_dims, dtype=torch.long), persistent=False)
-        if config.agent_dims:
-            self.locate = nn.Conv2d(config.resnet_width, 1, 1)  # the first stage keeps the stem's width
+        self.register_buffer("point_index", torch.tensor(config.point_dims, dtype=torch.long), persistent=False)
+        maps = bool(config.agent_dims) + bool(config.point_dims)
+        if maps:
+            self.locate = nn.Conv2d(config.resnet_width, maps, 1)  # the first stage keeps the stem's width
         self.relabel = _function(config.relabel) if config.relabel else None
 
-    def label(self, states: torch.Tensor) -> torch.Tensor:
-        """The task's labels of what a frame shows (``StateLayout.relabel``; its reward is the same on them)."""
-        return states if self.relabel is None else self.relabel(states)
+    def label(self, states: torch.Tensor, read: torch.Tensor | None = None) -> torch.Tensor:
+        """The task's labelling of what a frame shows (``StateLayout.relabel``; its reward is the same on each): of
+        several a picture cannot tell apart, the one nearest the states ``read`` from it (``(N, D)``), else the first."""
+        if self.relabel is None:
+            return states
+        options = self.relabel(states)
+        if options.dim() == 2:
+            return options
+        if read is None:
+            return options[:, 0]
+        gap = (self.targets(options) - self.targets(read)[:, None]).square().sum(-1)
+        return options[torch.arange(len(states), device=states.device), gap.argmin(dim=1)]
 
     def outputs(self) -> int:
         return self.config.state_dim
@@ -146,39 +160,63 @@ class StatePredictor(PosePredictor):
     def raw(self, x: torch.Tensor) -> torch.Tensor:
         return self.read(x)[0]
 
-    def read(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Prepared frames -> ``(N, D)`` outputs and, with a keypoint, its map's logits ``(N, h, w)``."""
-        if not self.config.agent_dims:
-            return super().raw(x), None
+    def read(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """Prepared frames -> ``(N, D)`` outputs, the maps' logits ``(N, maps, h, w)`` (None without) and the head's own
+        outputs."""
+        if not (self.config.agent_dims or self.config.point_dims):
+            out = super().raw(x)
+            return out, None, out
         early = self.trunk.stages[0](self.trunk.stem(x))
-        out = self.head(self.pool(self.trunk.stages[1:](early)))
-        logits = self.locate(early)[:, 0]
-        where = (torch.softmax(logits.flatten(1), dim=-1) @ self._centres(logits)).flip(-1)  # (row, col) -> (x, y)
-        xy = where * self.config.frame_extent + self.config.frame_origin  # type: ignore[operator]
-        dims = self.agent_index
-        return out.index_copy(1, dims, xy * self.normalizer.scales[STATE_KEY][dims] + self.normalizer.offsets[STATE_KEY][dims]), logits
+        head = self.head(self.pool(self.trunk.stages[1:](early)))
+        logits = self.locate(early)
+        grid, out, n = self._grid(logits), head, len(x)
+        if self.config.agent_dims:
+            xy = torch.softmax(logits[:, 0].flatten(1), dim=-1) @ grid
+            out = out.index_copy(1, self.agent_index, self._normalised(xy, self.agent_index))
+        if self.config.point_dims:
+            rough = self.to_pose(head)[:, self.point_index].reshape(n, -1, 1, 2)
+            cell = self.config.frame_extent / logits.shape[-1]  # type: ignore[operator]
+            prior = -(grid - rough).square().sum(-1) / (2.0 * (POINT_WINDOW * cell) ** 2)  # (N, P, h * w)
+            weights = torch.softmax(logits[:, -1].flatten(1)[:, None] + prior, dim=-1)
+            out = out.index_copy(1, self.point_index, self._normalised((weights @ grid).reshape(n, -1), self.point_index))
+        return out, logits, head
 
-    @staticmethod
-    def _centres(logits: torch.Tensor) -> torch.Tensor:
-        """``(h * w, 2)`` (row, column) of each cell's centre, as shares of the frame."""
+    def _normalised(self, values: torch.Tensor, dims: torch.Tensor) -> torch.Tensor:
+        return values * self.normalizer.scales[STATE_KEY][dims] + self.normalizer.offsets[STATE_KEY][dims]
+
+    def _grid(self, logits: torch.Tensor) -> torch.Tensor:
+        """``(h * w, 2)`` world ``(x, y)`` of each map cell's centre (x along columns, y along rows)."""
         h, w = logits.shape[-2:]
-        rows = (torch.arange(h, device=logits.device, dtype=logits.dtype) + 0.5) / h
-        cols = (torch.arange(w, device=logits.device, dtype=logits.dtype) + 0.5) / w
-        return torch.cartesian_prod(rows, cols)
+        extent, origin = self.config.frame_extent, self.config.frame_origin
+        rows = (torch.arange(h, device=logits.device, dtype=logits.dtype) + 0.5) / h * extent + origin  # type: ignore[operator]
+        cols = (torch.arange(w, device=logits.device, dtype=logits.dtype) + 0.5) / w * extent + origin  # type: ignore[operator]
+        return torch.cartesian_prod(rows, cols).flip(-1)
+
+    def _blobs(self, logits: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
+        """Cross-entropy of maps ``(N, h, w)`` against blobs one cell wide at ``where`` ``(N, P, 2)``, equal shares."""
+        cell = self.config.frame_extent / logits.shape[-1]  # type: ignore[operator]
+        gap = (self._grid(logits) - where[:, :, None]).square().sum(-1) / cell**2  # (N, P, h * w)
+        target = torch.softmax(-0.5 * gap, dim=-1).mean(dim=1)
+        return -(target * torch.log_softmax(logits.flatten(1), dim=-1)).sum(-1).mean()
 
     def fit_loss(self, x: torch.Tensor, states: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The label loss, plus, with a keypoint, a cross-entropy pulling its map onto a blob (one cell wide) where the
-        agent is: squared error alone lets the map settle on any fixed cell (a border's) and answer the mean."""
-        out, logits = self.read(x)
-        loss = F.mse_loss(out, self.targets(states))
+        """The label loss, plus a cross-entropy pulling each map onto blobs where its agent or points are (squared error
+        alone lets a map settle on any fixed cell, a border's, and answer the mean); the points' rough reading (the
+        head's) keeps its own label loss. Of labellings a picture cannot tell apart, the one nearest the head's is learned."""
+        out, logits, head = self.read(x)
+        states = self.label(states, self.to_pose(head.detach()))
+        targets = self.targets(states)
+        loss, parts = F.mse_loss(out, targets), {}
         if logits is None:
-            return loss, {}
-        where = (states[:, self.agent_index].flip(-1) - self.config.frame_origin) / self.config.frame_extent  # type: ignore[operator]
-        size = torch.tensor(logits.shape[-2:], device=x.device, dtype=x.dtype)
-        gap = ((self._centres(logits)[None] - where[:, None]) * size).square().sum(-1)  # (N, h * w), in cells squared
-        target = torch.softmax(-0.5 * gap, dim=-1)
-        blob = -(target * torch.log_softmax(logits.flatten(1), dim=-1)).sum(-1).mean()
-        return loss + AGENT_WEIGHT * blob, {"agent_ce": blob.detach()}
+            return loss, parts
+        n = len(x)
+        if self.config.agent_dims:
+            parts["agent_ce"] = self._blobs(logits[:, 0], states[:, self.agent_index].reshape(n, 1, 2))
+        if self.config.point_dims:
+            dims = self.point_index
+            loss = loss + F.mse_loss(head[:, dims], targets[:, dims]) * len(dims) / targets.shape[1]
+            parts["points_ce"] = self._blobs(logits[:, -1], states[:, dims].reshape(n, -1, 2))
+        return loss + AGENT_WEIGHT * sum(parts.values()), {k: v.detach() for k, v in parts.items()}  # type: ignore[return-value]
 
     def targets(self, states: torch.Tensor) -> torch.Tensor:
         return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]

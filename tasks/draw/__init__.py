@@ -41,7 +41,8 @@ LAYOUT = TaskLayout(
     # The ink off the outline (the last entry, a share of the band's cells) spans [0, 1] in the policy's normaliser: the
     # expert's tremor leaves at most 0.017 of it, one bad chunk of a policy 0.1 (which a data-fitted span made 10).
     state=StateLayout(dim=STATE_DIM, agent_xy=(0, 1), action_targets=(0, 1), spans=((STATE_DIM - 1, 0.0, 1.0),),
-                      relabel="gpc.tasks.draw.reward:canonical"),  # a picture shows the corners, not which came first
+                      relabel="gpc.tasks.draw.reward:rotations",  # a picture shows the corners, not which came first
+                      points=tuple(range(2, 8))),
     action=ActionBox(dim=2, low=0.0, high=WORKSPACE),
     objects=(),
     frame=FrameLayout(extent=(0.0, WORKSPACE), marker_size=geometry.PEN_RADIUS, agent_colours=(AGENT_EDGE,),
