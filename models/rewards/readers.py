@@ -175,7 +175,7 @@ class StatePredictor(PosePredictor):
             out = out.index_copy(1, self.agent_index, self._normalised(xy, self.agent_index))
         if self.config.point_dims:
             rough = self.to_pose(head)[:, self.point_index].reshape(n, -1, 1, 2)
-            cell = self.config.frame_extent / logits.shape[-1]  # type: ignore[operator]
+            cell = self.config.frame_extent / logits.shape[-1]
             prior = -(grid - rough).square().sum(-1) / (2.0 * (POINT_WINDOW * cell) ** 2)  # (N, P, h * w)
             weights = torch.softmax(logits[:, -1].flatten(1)[:, None] + prior, dim=-1)
             out = out.index_copy(1, self.point_index, self._normalised((weights @ grid).reshape(n, -1), self.point_index))
@@ -206,7 +206,7 @@ class StatePredictor(PosePredictor):
         out, logits, head = self.read(x)
         states = self.label(states, self.to_pose(head.detach()))
         targets = self.targets(states)
-        loss, parts = F.mse_loss(out, targets), {}
+        loss, parts = F.mse_loss(out, targets), dict[str, torch.Tensor]()
         if logits is None:
             return loss, parts
         n = len(x)
@@ -216,7 +216,7 @@ class StatePredictor(PosePredictor):
             dims = self.point_index
             loss = loss + F.mse_loss(head[:, dims], targets[:, dims]) * len(dims) / targets.shape[1]
             parts["points_ce"] = self._blobs(logits[:, -1], states[:, dims].reshape(n, -1, 2))
-        return loss + AGENT_WEIGHT * sum(parts.values()), {k: v.detach() for k, v in parts.items()}  # type: ignore[return-value]
+        return loss + AGENT_WEIGHT * sum(parts.values()), {k: v.detach() for k, v in parts.items()}
 
     def targets(self, states: torch.Tensor) -> torch.Tensor:
         return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]
