@@ -40,29 +40,14 @@ def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> 
     return (gap * gap).sum(-1).clamp(min=1e-9).sqrt()
 
 
-def _turned(states: torch.Tensor, first: torch.Tensor) -> torch.Tensor:
-    """``(N, D)`` states with corner ``first`` ``(N,)`` listed first, the others and their edges' bins in turn."""
-    order = (first[:, None] + torch.arange(3, device=states.device)) % 3
-    v = torch.gather(states[:, 2:SUMMARY_START].reshape(-1, 3, 2), 1, order[..., None].expand(-1, -1, 2))
-    end = SUMMARY_START + 3 * N_BINS
-    bins = torch.gather(states[:, SUMMARY_START:end].reshape(-1, 3, N_BINS), 1, order[..., None].expand(-1, -1, N_BINS))
-    return torch.cat([states[:, :2], v.reshape(-1, 6), bins.reshape(-1, 3 * N_BINS), states[:, end:]], dim=1)
-
-
 def rotations(states: torch.Tensor) -> torch.Tensor:
     """``(N, D)`` -> ``(N, 3, D)``: the three labellings of one picture (each corner first; the seed's first corner
     is where the pen started, which a frame does not show). The reward is the same on each: every bin keeps its edge,
     the edges their order (``draw_triangle`` lists the corners by increasing angle)."""
-    index = torch.zeros(len(states), dtype=torch.long, device=states.device)
-    return torch.stack([_turned(states, index + r) for r in range(3)], dim=1)
-
-
-def canonical(states: torch.Tensor) -> torch.Tensor:
-    """``(N, D)``: the labelling with the corner at the smallest angle about the centre first. Tried as the reader's
-    labels before ``rotations``: near the cut at +-pi a small turn changes which corner is first (20% of held-out
-    frames read in another rotation, docs/tasks.md)."""
-    centred = states[:, 2:SUMMARY_START].reshape(-1, 3, 2) - states[:, 2:SUMMARY_START].reshape(-1, 3, 2).mean(dim=1, keepdim=True)
-    return _turned(states, torch.atan2(centred[..., 1], centred[..., 0]).argmin(dim=1))
+    end = SUMMARY_START + 3 * N_BINS
+    corners, bins = states[:, 2:SUMMARY_START].reshape(-1, 3, 2), states[:, SUMMARY_START:end].reshape(-1, 3, N_BINS)
+    return torch.stack([torch.cat([states[:, :2], corners.roll(-r, 1).flatten(1), bins.roll(-r, 1).flatten(1), states[:, end:]], 1)
+                        for r in range(3)], dim=1)
 
 
 class InkReward(nn.Module):
