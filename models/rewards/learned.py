@@ -18,7 +18,8 @@ extent are filled into the config by the caller (``with_task``), so this module 
 A task scored by its own state reward (``Task.state_reward`` other than ``registration``: Triangle Drawing's ink,
 Block Stacking's heights) has no poses to register: its predictor reads the whole state vector instead
 (``StatePredictor``; ``config.state_reward`` names the reward) and ``gpc.models.rewards.image_state`` scores the
-read states with that reward, so frames are ranked by the function states are.
+read states with that reward, so frames are ranked by the function states are. Both networks live in
+``gpc.models.rewards.readers``; this module holds their config, profiles and training.
 """
 
 from __future__ import annotations
