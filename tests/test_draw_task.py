@@ -96,10 +96,10 @@ def test_a_reader_is_told_every_order_of_the_corners_and_the_reward_is_the_same_
     """The seed draws which corner comes first (the pen starts there), a frame shows no such order: the task's
     relabelling gives a reader the three cyclic orders (their edges' ink with them) to learn the nearest of, the same
     three whichever the seed drew, and the reward of a path scores each alike."""
-    from gpc.models.rewards.readers import _function
+    from gpc.models.named import load_named
 
     task = get_task("draw")
-    relabel = _function(task.layout.state.relabel)
+    relabel = load_named(task.layout.state.relabel, "relabel")
     states = torch.tensor(_true_states(100001, "edge")[0], dtype=torch.float32)  # (T, 33), ink growing along an edge
     corners, bins = states[:, 2:8].reshape(-1, 3, 2), states[:, 8:32].reshape(-1, 3, 8)
     turned = [torch.cat([states[:, :2], corners.roll(r, 1).flatten(1), bins.roll(r, 1).flatten(1), states[:, 32:]], 1)

@@ -16,10 +16,11 @@ config naming a planner) imports no network code.
 
 from __future__ import annotations
 
-import importlib
 import os
 from dataclasses import dataclass
 from typing import Any
+
+from gpc.models.named import load_named
 
 ENV_VAR = "GPC_PLANNERS"
 WORLD_MODEL = "gpc.harness.recipes:load_world_model"  # the loader of GPC's scorers: a world model (or gt-sim) + the reward
@@ -52,10 +53,10 @@ class PlannerKind:
         return not self.uses_policy
 
     def planner_class(self) -> Any:
-        return _import(self.planner, f"planner {self.name}")
+        return load_named(self.planner, f"planner {self.name}")
 
     def loader(self) -> Any:
-        return _import(self.load, f"planner {self.name}")
+        return load_named(self.load, f"planner {self.name}")
 
 
 _PLANNER = "gpc.models.planning.planner"
@@ -94,7 +95,7 @@ def _discover() -> None:
         return
     _discovered.append(True)
     for spec in filter(None, os.environ.get(ENV_VAR, "").split(",")):
-        kind = _import(spec if ":" in spec else f"{spec}:KIND", f"${ENV_VAR}")
+        kind = load_named(spec if ":" in spec else f"{spec}:KIND", f"${ENV_VAR}")
         if not isinstance(kind, PlannerKind):
             raise ValueError(f"${ENV_VAR}: {spec!r} is a {type(kind).__name__}, not a PlannerKind")
         _REGISTRY.setdefault(kind.name, kind)
@@ -113,10 +114,3 @@ def planner_kind(name: str) -> PlannerKind:
                          f"(name your own in ${ENV_VAR}=module:KIND or register it with register_planner)")
     return _REGISTRY[name]
 
-
-def _import(spec: str, source: str) -> Any:
-    module, _, attr = spec.strip().partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"{source}: cannot load {spec!r} ({exc})") from None

@@ -13,11 +13,11 @@ reads a state from every predicted frame for it (``gpc.models.rewards.image_stat
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Any
 
 from gpc.datasets.layout import TaskLayout
+from gpc.models.named import load_named
 from gpc.models.rewards.registration import RegistrationReward, RewardConfig
 
 StateRewardFactory = Callable[[TaskLayout, RewardConfig], Any]
@@ -32,11 +32,7 @@ def register_state_reward(name: str, factory: StateRewardFactory) -> None:
 def state_reward(name: str, layout: TaskLayout, config: RewardConfig = RewardConfig()) -> Any:
     """The reward a task names, for its layout (a ``module:function`` name is imported and registered)."""
     if name not in _FACTORIES and ":" in name:
-        module, _, attr = name.partition(":")
-        try:
-            register_state_reward(name, getattr(importlib.import_module(module), attr))
-        except (ImportError, AttributeError) as exc:
-            raise ValueError(f"task {layout.name}: cannot load state reward {name!r} ({exc})") from None
+        register_state_reward(name, load_named(name, f"task {layout.name}'s state reward"))
     if name not in _FACTORIES:
         raise ValueError(f"task {layout.name}: unknown state reward {name!r} (registered: {', '.join(sorted(_FACTORIES))}; "
                          "add yours with gpc.models.rewards.state.register_state_reward)")

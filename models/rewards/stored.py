@@ -9,11 +9,12 @@ learned values comparable across tasks.
 from __future__ import annotations
 
 import functools
-import importlib
 from typing import Any
 
 import numpy as np
 import torch
+
+from gpc.models.named import load_named
 
 TASK_REWARD = "gpc.harness.values:task_reward"
 CHUNK = 4096  # states scored per call when measuring the scale
@@ -22,11 +23,7 @@ CHUNK = 4096  # states scored per call when measuring the scale
 @functools.lru_cache(maxsize=8)
 def stored_reward(spec: str, task: str) -> Any:
     """The reward ``spec`` names for ``task``: ``(N, T, D)`` raw states, ``(N, G)`` goals or None -> ``(N,)``, the last step scored."""
-    module, _, attr = spec.partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)(task)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"cannot load the training reward {spec!r} ({exc})") from None
+    return load_named(spec, "the training reward")(task)
 
 
 def reward_scale(spec: str, task: str, states: np.ndarray, goals: np.ndarray | None) -> float:
