@@ -144,13 +144,11 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
     pids, names = {w.pid for w in workers}, _pool_semaphores(pool)
     _workers.update(pids)
     _semaphores.update(names)
-    stopping = False
     try:
         while True:
             try:
                 item = results.next(every)  # type: ignore[attr-defined]  # IMapIterator.next takes a timeout
             except mp.TimeoutError:
-                stopping = requested() is not None
                 check()
                 dead = [w for w in workers if w.exitcode is not None]
                 if dead:
@@ -165,6 +163,6 @@ def polled(pool: Any, results: Iterator[Any], every: float = 0.25) -> Iterator[A
     finally:
         # Stopping on the flag, the pool is still being torn down when a second signal may come (make's SIGTERM,
         # then the user's): leave its workers and semaphores to that signal (a name already gone is skipped).
-        if not stopping:
+        if requested() is None:
             _workers.difference_update(pids)
             _semaphores.difference_update(names)

@@ -69,7 +69,7 @@ class RewardPredictorConfig(PlainConfig):
     frame_extent: float | None = None  # world units a frame spans (from the task); needed for label-consistent shifts
     state_reward: str = ""  # the task's own state reward (its name): the predictor reads the whole state, not poses
     state_dim: int = 0  # the state entries it reads then (all of them)
-    keypoints: bool = False  # a state reader of a top-down frame reads the agent and the task's points on maps (readers)
+    keypoints: bool = True  # a state reader of a top-down frame reads the agent and the task's points on maps (readers)
     agent_dims: tuple[int, ...] = ()  # the agent's (x, y) entries then (the task's agent_xy; filled by with_task)
     point_dims: tuple[int, ...] = ()  # the points' (x, y) entry pairs then (the task's StateLayout.points)
     frame_origin: float = 0.0  # world coordinate at a frame's first pixel edge (from the task), for the keypoint
@@ -184,7 +184,6 @@ def reward_profile(name: str, layout: TaskLayout, input_size: int | None = None,
         config = dataclasses.replace(config, input_size=input_size)
     if lr is not None:
         config = dataclasses.replace(config, optim=dataclasses.replace(config.optim, lr=lr))
-    config = dataclasses.replace(config, keypoints=True)  # used by a state reader only (see with_task)
     return Profile(config.with_task(layout, state_reward), batch, steps)
 
 
@@ -319,11 +318,12 @@ class RewardPredictorModule(TrainableModule):
         """The label loss on unaugmented frames, with the pose and registration-loss errors in px and degrees."""
         frames, states = self._frames_states(batch)
         out = self.predictor.raw(self.predictor.prepare(frames))
-        states = self.predictor.label(states, self.predictor.to_pose(out))
+        read = self.predictor.to_pose(out)
+        states = self.predictor.label(states, read)
         loss = F.mse_loss(out, self.predictor.targets(states))
         c = self.config
         if c.state_reward:  # a state reader: its entries' mean error in raw units (the reward's error: `gpc eval reward`)
-            read, logs = self.predictor.to_pose(out), {}
+            logs = {}
             if c.agent_dims:  # and how far off it places the agent and the points
                 logs["agent_err"] = (read - states)[:, list(c.agent_dims)].norm(dim=-1).mean()
             if c.point_dims:
@@ -331,6 +331,6 @@ class RewardPredictorModule(TrainableModule):
             return loss, {"state_abs_err": (read - states).abs().mean(), **logs}
         verts = [torch.tensor(v, device=out.device) for v in c.object_vertices]
         goal = None if c.goal is None else torch.tensor(c.goal, device=out.device)
-        errors = pose_errors(self.predictor.to_pose(out), states[:, list(c.pose_dims)], verts, goal, c.sizes)
+        errors = pose_errors(read, states[:, list(c.pose_dims)], verts, goal, c.sizes)
         names = ("registration_abs_err_px", "vertex_px", "position_px", "angle_deg")
         return loss, {name: errors[name].mean() for name in names if name in errors and not errors[name].isnan().all()}

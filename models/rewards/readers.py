@@ -10,8 +10,6 @@ scene (the head alone read the pen 108 px off on held-out drawings). The map is 
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import torch
@@ -19,6 +17,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from gpc.datasets.normalizer import MinMaxNormalizer
+from gpc.models.named import load_named
 from gpc.models.networks.resnet import ResNet18Trunk
 from gpc.models.rewards.augment import resize
 
@@ -26,16 +25,9 @@ if TYPE_CHECKING:
     from gpc.models.rewards.learned import RewardPredictorConfig
 
 IMAGE_KEY, STATE_KEY = "img", "state"
-AGENT_WEIGHT = 0.1  # each keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
+MAP_WEIGHT = 0.1  # each keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
 POINT_WINDOW = 2.0  # cells: how far from the head's reading a point's map is read (corners lie 5 or more apart)
 
-
-def _function(name: str) -> Callable[[torch.Tensor], torch.Tensor]:
-    module, _, attr = name.partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"relabel {name!r}: cannot load it ({exc})") from None
 
 
 class PosePredictor(nn.Module):
@@ -139,7 +131,7 @@ class StatePredictor(PosePredictor):
         maps = bool(config.agent_dims) + bool(config.point_dims)
         if maps:
             self.locate = nn.Conv2d(config.resnet_width, maps, 1)  # the first stage keeps the stem's width
-        self.relabel = _function(config.relabel) if config.relabel else None
+        self.relabel = load_named(config.relabel, "relabel") if config.relabel else None
 
     def label(self, states: torch.Tensor, read: torch.Tensor | None = None) -> torch.Tensor:
         """The task's labelling of what a frame shows (``StateLayout.relabel``; its reward is the same on each): of
@@ -216,7 +208,7 @@ class StatePredictor(PosePredictor):
             dims = self.point_index
             loss = loss + F.mse_loss(head[:, dims], targets[:, dims]) * len(dims) / targets.shape[1]
             parts["points_ce"] = self._blobs(logits[:, -1], states[:, dims].reshape(n, -1, 2))
-        return loss + AGENT_WEIGHT * sum(parts.values()), {k: v.detach() for k, v in parts.items()}
+        return loss + MAP_WEIGHT * sum(parts.values()), {k: v.detach() for k, v in parts.items()}
 
     def targets(self, states: torch.Tensor) -> torch.Tensor:
         return states * self.normalizer.scales[STATE_KEY] + self.normalizer.offsets[STATE_KEY]
