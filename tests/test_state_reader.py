@@ -117,30 +117,46 @@ def test_the_keypoint_map_is_trained_toward_where_it_reads_the_agent():
     assert reader.fit_loss(x, states)[1]["agent_ce"] > right + 1.0
 
 
-def test_the_corners_are_the_heads_readings_moved_onto_the_maps_nearest_peaks():
-    """A head that reads each corner 40-60 px off, a map peaked at all three: each reading lands on its own corner."""
+def test_the_corners_are_the_maps_peaks_moved_by_their_offsets_in_the_heads_order():
+    """A heat map peaked at the three corners' cells, offset maps saying where in each cell the corner lies, a head
+    that reads each corner 40-60 px off: each corner is read exactly, in the head's order (not the map's); the offset
+    loss is nought on those maps and not on maps that say the cells' centres."""
     config = dataclasses.replace(reward_profile("tiny", DRAW.layout, state_reward=DRAW.state_reward).config, input_size=64)
     reader = StatePredictor(config)
     reader.normalizer.scales["state"], reader.normalizer.offsets["state"] = torch.ones(33), torch.zeros(33)
-    corners = torch.tensor([[100.0, 100.0], [400.0, 120.0], [250.0, 420.0]])
+    corners = torch.tensor([[250.0, 420.0], [100.0, 101.0], [407.0, 120.0]])  # not in the map's row-major order
     state = torch.zeros(33)
     state[2:8] = corners.flatten()
     off = state.clone()
     off[2:8] += torch.tensor([40.0, -30.0, -35.0, 45.0, 30.0, 30.0])
-    grid = reader._grid(torch.zeros(1, 1, 16, 16))
+    cell = 512 / 16
+    rows, cols = (corners[:, 1] // cell).long(), (corners[:, 0] // cell).long()
 
-    class Peaks(torch.nn.Module):  # channel 0 the agent's (unused here), channel 1 the corners', each a cell wide
+    class Peaks(torch.nn.Module):  # channel 0 the agent's (unused here), then the corners' heat map and offsets
+        def __init__(self, exact: bool) -> None:
+            super().__init__()
+            self.exact = exact
+
         def forward(self, early: torch.Tensor) -> torch.Tensor:
-            gap = (grid - corners[:, None]).square().sum(-1).min(0).values / 32.0**2
-            return torch.stack([torch.zeros_like(gap), -0.5 * gap]).reshape(1, 2, 16, 16).expand(len(early), -1, -1, -1)
+            maps = torch.zeros(4, 16, 16)
+            maps[1, rows, cols] = 5.0
+            if self.exact:
+                maps[2, rows, cols] = corners[:, 0] / cell - cols - 0.5
+                maps[3, rows, cols] = corners[:, 1] / cell - rows - 0.5
+            return maps.expand(len(early), -1, -1, -1)
 
-    reader.locate = Peaks()
+    reader.locate = Peaks(exact=True)
     torch.nn.init.zeros_(reader.head[-1].weight)
     with torch.no_grad():
         reader.head[-1].bias.copy_(off)
         out, _, head = reader.read(torch.zeros(1, 3, 64, 64))
-    torch.testing.assert_close(head[0, 2:8], off[2:8])
-    assert (out[0, 2:8].reshape(3, 2) - corners).norm(dim=-1).max() < 12.0  # from 50-58 px off
+        torch.testing.assert_close(head[0, 2:8], off[2:8])
+        torch.testing.assert_close(out[0, 2:8].reshape(3, 2), corners)  # from 50-58 px off
+        exact = reader.fit_loss(torch.zeros(1, 3, 64, 64), state[None])[1]["points_offset"]
+        reader.locate = Peaks(exact=False)  # the cells' centres: up to half a cell (16 px) off
+        assert (reader.read(torch.zeros(1, 3, 64, 64))[0][0, 2:8].reshape(3, 2) - corners).abs().max() > 10.0
+        centres = reader.fit_loss(torch.zeros(1, 3, 64, 64), state[None])[1]["points_offset"]
+    assert exact < 1e-10 < 0.5 < centres
 
 
 def test_the_state_reader_scores_frames_with_the_task_reward(trained, store):
