@@ -185,8 +185,8 @@ class StatePredictor(PosePredictor):
         peaks = torch.where(heat == F.max_pool2d(heat[:, None], 3, 1, 1)[:, 0], heat, heat.new_tensor(float("-inf")))
         idx = peaks.flatten(1).topk(rough.shape[1], dim=1).indices  # (N, P) cells
         found = grid[idx] + self._at(offset, idx) * cell
-        cost = torch.stack([(found[:, order] - rough).square().sum((1, 2)) for order in self.orders])  # (orders, N)
-        best = self.orders[cost.argmin(dim=0)]  # (N, P)
+        cost = (found[:, self.orders] - rough[:, None]).square().sum((2, 3))  # (N, orders)
+        best = self.orders[cost.argmin(dim=1)]  # (N, P)
         return found.gather(1, best[..., None].expand(-1, -1, 2))
 
     @staticmethod
