@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 IMAGE_KEY, STATE_KEY = "img", "state"
 MAP_WEIGHT = 0.1  # each keypoint map's cross-entropy (about 5.5 untrained at 16 x 16 cells) beside the label loss
-OFFSET_WEIGHT = 10.0  # the points' offset error (squared, in cells: 0.17 untrained) beside the maps' cross-entropy
+OFFSET_WEIGHT = 10.0  # the points' offset error (squared, in cells: 0.17 untrained), then MAP_WEIGHT as the maps': 1 in all
 
 
 
@@ -121,8 +121,8 @@ class StatePredictor(PosePredictor):
     reader of a task scored by its own state reward (``config.state_reward``). Where given, the agent's entries
     (``config.agent_dims``) are read on a keypoint map, and the points' (``config.point_dims``: a drawing's corners)
     are a second map's highest peaks, each moved by an offset regressed within its cell (a cell is 32 px of a 512 px
-    canvas at 64 px; held out, the offsets place a corner 7 px from the truth where its peak is found) and put in the
-    order of the head's readings of them."""
+    canvas at 64 px; on held-out drawings the offset at a corner's own cell places it 7 px from the truth) and put in
+    the order of the head's readings of them."""
 
     agent_index: torch.Tensor
     point_index: torch.Tensor
@@ -181,7 +181,7 @@ class StatePredictor(PosePredictor):
         """``(N, P, 2)``: the heat map's P highest local peaks, each moved by its cell's offset, assigned to the head's
         rough readings ``rough`` (the order nearest them: the head tells which point is which, the map where)."""
         heat, offset = logits[:, -3], logits[:, -2:]
-        cell = self.config.frame_extent / heat.shape[-1]  # type: ignore[operator]
+        cell = self._cell(heat)
         peaks = torch.where(heat == F.max_pool2d(heat[:, None], 3, 1, 1)[:, 0], heat, heat.new_tensor(float("-inf")))
         idx = peaks.flatten(1).topk(rough.shape[1], dim=1).indices  # (N, P) cells
         found = grid[idx] + self._at(offset, idx) * cell
@@ -193,6 +193,10 @@ class StatePredictor(PosePredictor):
     def _at(maps: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         """Two-channel maps ``(N, 2, h, w)`` read at flat cells ``idx`` ``(N, P)`` -> ``(N, P, 2)``."""
         return maps.flatten(2).gather(2, idx[:, None].expand(-1, 2, -1)).transpose(1, 2)
+
+    def _cell(self, maps: torch.Tensor) -> float:
+        """World units a cell of maps ``(..., h, w)`` spans (square cells over the frame's extent)."""
+        return self.config.frame_extent / maps.shape[-1]  # type: ignore[operator]
 
     def _normalised(self, values: torch.Tensor, dims: torch.Tensor) -> torch.Tensor:
         return values * self.normalizer.scales[STATE_KEY][dims] + self.normalizer.offsets[STATE_KEY][dims]
@@ -207,7 +211,7 @@ class StatePredictor(PosePredictor):
 
     def _blobs(self, logits: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
         """Cross-entropy of maps ``(N, h, w)`` against blobs one cell wide at ``where`` ``(N, P, 2)``, equal shares."""
-        cell = self.config.frame_extent / logits.shape[-1]  # type: ignore[operator]
+        cell = self._cell(logits)
         gap = (self._grid(logits) - where[:, :, None]).square().sum(-1) / cell**2  # (N, P, h * w)
         target = torch.softmax(-0.5 * gap, dim=-1).mean(dim=1)
         return -(target * torch.log_softmax(logits.flatten(1), dim=-1)).sum(-1).mean()
@@ -238,7 +242,7 @@ class StatePredictor(PosePredictor):
         """Squared error, in cells, of the offset maps ``(N, 2, h, w)`` at each point's cell against where in that cell
         the point ``where`` ``(N, P, 2)`` lies, from its centre (x, y), weighted ``OFFSET_WEIGHT``."""
         h, w = offset.shape[-2:]
-        at = (where - self.config.frame_origin) / (self.config.frame_extent / w)  # type: ignore[operator]  # in cells
+        at = (where - self.config.frame_origin) / self._cell(offset)  # in cells
         col, row = at[..., 0].floor().clamp(0, w - 1), at[..., 1].floor().clamp(0, h - 1)
         target = (at - torch.stack([col, row], dim=-1) - 0.5).clamp(-0.5, 0.5)
         return OFFSET_WEIGHT * (self._at(offset, (row * w + col).long()) - target).square().sum(-1).mean()
